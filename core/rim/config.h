@@ -1,0 +1,119 @@
+// Mapper configuration: one plain struct per module, composed into MapperConfig, with the named
+// presets of DESIGN.md §3.7. Parsing of overrides (`key=value`) and validation happen here only.
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+
+namespace rim {
+
+// The robot-centric local map and its multi-resolution feature grids (§3.1, §3.2).
+struct GridConfig {
+  float leaf_size_m = 0.1f;  // s: finest voxel size; level l has voxel size s * 2^l.
+  int levels = 3;            // L
+  int feature_dim = 8;       // D
+  // Half extents of the local box around the robot, metres. z is asymmetric (ground below).
+  float half_extent_x_m = 10.f;
+  float half_extent_y_m = 10.f;
+  float z_min_m = -3.f;  // relative to the robot
+  float z_max_m = 3.f;
+  bool sliding = true;  // false: the box stays where the first frame put it (indoor depth scenes)
+};
+
+// The shallow MLP decoder (§3.1).
+struct DecoderConfig {
+  int hidden_layers = 1;  // the paper uses 1, the official code 2
+  int hidden_width = 32;
+  int freeze_after_frames = 20;  // decoder frozen once this many frames were integrated
+  uint64_t seed = 42;            // decoder initialisation
+};
+
+// Training per frame (§3.4 step 3).
+struct TrainConfig {
+  int iterations = 30;
+  int min_iterations = 3;  // lower bound when a caller asks for fewer iterations under load
+  float learning_rate = 1e-2f;
+  float sigma_m = 0.05f;  // σ of S(d) = 1/(1+exp(d/σ)) and of the surface-sample noise
+  float eikonal_weight = 0.f;  // 0 disables the eikonal term
+  float adam_beta1 = 0.9f;
+  float adam_beta2 = 0.999f;
+  float adam_eps = 1e-15f;
+};
+
+// Ray sampling (§3.4 step 3, "Sample").
+struct SamplerConfig {
+  int rays_per_iteration = 2048;  // N
+  int surface_samples = 3;        // Ns ~ N(d, σ²)
+  int free_samples = 3;           // Nf, stratified in [free_min_ratio·d, free_max_ratio·d]
+  float free_min_ratio = 0.3f;
+  float free_max_ratio = 0.9f;
+  bool outside_rays = false;  // sample free space of out-of-box rays up to the box exit
+  int outside_rays_per_iteration = 512;
+  // A training sample with |label| below this marks its finest voxel as observed.
+  float observed_band_m = 0.15f;
+  uint64_t seed = 7;
+};
+
+// Historical point buffer (bundle supervision, §3.4 step 2).
+struct BufferConfig {
+  int max_points = 1000000;
+  int max_points_per_frame = 10000;
+  float min_range_m = 0.3f;   // closer returns hit the robot itself
+  float max_range_m = 60.f;
+  bool outlier_removal = false;
+  int outlier_period_frames = 10;
+  float outlier_threshold_m = 0.05f;  // ε
+};
+
+// Global map of sub-maps (§3.3).
+struct SubmapConfig {
+  int block_size = 8;  // sparse storage unit, voxels per edge
+  // Sub-maps whose centre is within this many sub-map sizes of the robot stay active; farther
+  // ones are frozen (host memory, and the first to spill).
+  float active_radius_submaps = 1.5f;
+  // Frozen sub-maps spill to `spill_dir` when host memory of the store exceeds this (0: never).
+  int64_t host_budget_bytes = 0;
+  std::string spill_dir;  // empty: spilling disabled
+  bool background_save = true;
+};
+
+struct MeshConfig {
+  float resolution_m = 0.05f;  // must divide the leaf size
+};
+
+struct MapperConfig {
+  std::string preset = "maicity";
+  GridConfig grid;
+  DecoderConfig decoder;
+  TrainConfig train;
+  SamplerConfig sampler;
+  BufferConfig buffer;
+  SubmapConfig submap;
+  MeshConfig mesh;
+
+  // Checks every value; the error names the bad field (e.g. "grid.leaf_size_m must be > 0").
+  absl::Status Validate() const;
+  // Every field as `key = value` lines, in the form ApplyOverride accepts.
+  std::string ToString() const;
+};
+
+// Names of the built-in presets: maicity, maicity_online, kitti, replica, campus.
+std::vector<std::string> PresetNames();
+absl::StatusOr<MapperConfig> MakePreset(const std::string& name);
+
+// Sets one field by its dotted name ("train.iterations", "grid.leaf_size_m"). Unknown keys and
+// unparsable values are INVALID_ARGUMENT naming the key. Does not validate the whole config.
+absl::Status ApplyOverride(const std::string& key, const std::string& value, MapperConfig* config);
+// Applies `key=value` strings in order, then validates.
+absl::Status ApplyOverrides(const std::vector<std::string>& key_values, MapperConfig* config);
+// Builds a config from a preset, a config file (`key = value` lines, '#' comments; a `preset = X`
+// line selects the base), and overrides, in that order of precedence (last wins). Validated.
+absl::StatusOr<MapperConfig> LoadConfigFile(const std::string& path,
+                                            const std::vector<std::string>& overrides = {});
+absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text, const std::string& source_name);
+
+}  // namespace rim

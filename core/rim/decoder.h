@@ -1,0 +1,57 @@
+// The shallow MLP decoder (§3.1): L·D features → hidden ReLU layers → SDF. Parameters live in one
+// contiguous buffer (weights then bias, per layer) with their Adam state, so that training
+// (train_step.cc, through libtorch autograd), queries (plain C++ here) and persistence all share
+// one copy. The plain forward is deterministic: the same input gives bit-identical output
+// whatever the batch, which seamless meshing across tiles relies on.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "rim/binary_io.h"
+#include "rim/config.h"
+
+namespace rim {
+
+struct AdamHyper {
+  float lr, beta1, beta2, eps;
+};
+
+// One Adam update of n parameters with their own step count (already incremented, ≥ 1).
+void AdamUpdate(const AdamHyper& h, int step, int n, const float* grad, float* param, float* m,
+                float* v);
+
+class Decoder {
+ public:
+  struct Layer {
+    int in, out;
+    size_t weight_offset, bias_offset;  // into params()
+  };
+
+  Decoder(int input_dim, const DecoderConfig& config);
+
+  int input_dim() const { return input_dim_; }
+  const std::vector<Layer>& layers() const { return layers_; }
+  std::vector<float>& params() { return params_; }
+  const std::vector<float>& params() const { return params_; }
+
+  // SDF of n feature rows; with `dsdf_dfeatures` (n × input_dim) also the derivative of each
+  // output with respect to its input row.
+  void Forward(const float* features, int n, float* sdf, float* dsdf_dfeatures = nullptr) const;
+
+  // Adam step on all parameters from their gradient (same layout as params()).
+  void Step(const AdamHyper& hyper, const std::vector<float>& grad);
+
+  void Serialize(ByteWriter* w) const;
+  absl::Status Deserialize(ByteReader* r);
+
+ private:
+  int input_dim_;
+  std::vector<Layer> layers_;
+  std::vector<float> params_, adam_m_, adam_v_;
+  int adam_step_ = 0;
+  int max_width_ = 1;
+};
+
+}  // namespace rim

@@ -1,0 +1,156 @@
+#include "rim/encoder.h"
+
+#include <cmath>
+#include <cstring>
+
+namespace rim {
+
+void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features) {
+  const MapGeometry& geo = map.geometry();
+  const int L = geo.levels(), D = geo.feature_dim();
+  enc->points = n;
+  enc->slots.resize(size_t(n) * L * 8);
+  enc->weights.resize(size_t(n) * L * 8);
+  for (int l = 0; l < L; ++l) {
+    const LocalMap::Level& lv = map.level(l);
+    const double inv_h = 1.0 / geo.voxel_m(l);
+    const Int3 dims = lv.dims;
+    for (int p = 0; p < n; ++p) {
+      int s0[3], s1[3];
+      float f[3];
+      for (int a = 0; a < 3; ++a) {
+        const double u = double(xyz[3 * p + a]) * inv_h;
+        const double base = std::floor(u);
+        f[a] = float(u - base);
+        // Ring-buffer slots of the lower and upper corner along this axis.
+        s0[a] = PosMod(int(base), dims[a]);
+        s1[a] = s0[a] + 1 == dims[a] ? 0 : s0[a] + 1;
+      }
+      int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
+      float* w = &enc->weights[(size_t(p) * L + l) * 8];
+      float* out = features + size_t(p) * L * D + size_t(l) * D;
+      std::fill_n(out, D, 0.f);
+      for (int c = 0; c < 8; ++c) {
+        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+        const int64_t slot = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) *
+                                 dims.z() + (cz ? s1[2] : s0[2]);
+        const float wc = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) *
+                         (cz ? f[2] : 1.f - f[2]);
+        slots[c] = slot;
+        w[c] = wc;
+        const float* feat = &lv.features[slot * D];
+        for (int d = 0; d < D; ++d) out[d] += wc * feat[d];
+      }
+    }
+  }
+}
+
+void SparseGradient::Reset(const LocalMap& map) {
+  levels_.resize(map.geometry().levels());
+  for (int l = 0; l < map.geometry().levels(); ++l) {
+    const size_t n = map.level(l).adam_steps.size();
+    levels_[l].stamp.assign(n, 0);
+    levels_[l].row.assign(n, 0);
+  }
+  iteration_ = 0;
+}
+
+void SparseGradient::BeginIteration() {
+  ++iteration_;
+  if (iteration_ == 0) {  // wrapped: stale stamps could alias, so clear them once
+    for (Level& lv : levels_) std::fill(lv.stamp.begin(), lv.stamp.end(), 0);
+    iteration_ = 1;
+  }
+  for (Level& lv : levels_) {
+    lv.touched.clear();
+    lv.grad.clear();
+  }
+}
+
+void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
+                             const float* grad_features) {
+  const int L = map.geometry().levels(), D = map.geometry().feature_dim();
+  for (int l = 0; l < L; ++l) {
+    Level& lv = levels_[l];
+    for (int p = 0; p < enc.points; ++p) {
+      const float* g = grad_features + size_t(p) * L * D + size_t(l) * D;
+      const int64_t* slots = &enc.slots[(size_t(p) * L + l) * 8];
+      const float* w = &enc.weights[(size_t(p) * L + l) * 8];
+      for (int c = 0; c < 8; ++c) {
+        const int64_t slot = slots[c];
+        if (lv.stamp[slot] != iteration_) {
+          lv.stamp[slot] = iteration_;
+          lv.row[slot] = int32_t(lv.touched.size());
+          lv.touched.push_back(slot);
+          lv.grad.resize(lv.grad.size() + D, 0.f);
+        }
+        float* dst = &lv.grad[size_t(lv.row[slot]) * D];
+        for (int d = 0; d < D; ++d) dst[d] += w[c] * g[d];
+      }
+    }
+  }
+}
+
+FeatureReader::FeatureReader(const LocalMap& map, const SubmapStore& store)
+    : map_(map), store_(store), zeros_(map.geometry().feature_dim(), 0.f) {}
+
+const FeatureReader::Entry& FeatureReader::Fetch(int level, const Int3& g) {
+  auto [it, inserted] = cache_[level].try_emplace(g);
+  if (inserted) {
+    Entry& e = it->second;
+    e.features.assign(map_.geometry().feature_dim(), 0.f);
+    uint8_t observed = 0;
+    if (!store_.Read(level, g, e.features.data(), &observed)) observed = 0;
+    e.observed = observed != 0;
+  }
+  return it->second;
+}
+
+const float* FeatureReader::Get(int level, const Int3& g) {
+  if (map_.InBox(level, g)) {
+    return &map_.level(level).features[map_.Slot(level, g) * map_.geometry().feature_dim()];
+  }
+  return Fetch(level, g).features.data();
+}
+
+bool FeatureReader::Observed(const Int3& g0) {
+  if (map_.InBox(0, g0)) return map_.level(0).flags[map_.Slot(0, g0)] & LocalMap::kObserved;
+  return Fetch(0, g0).observed;
+}
+
+void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
+  const MapGeometry& geo = map_.geometry();
+  const int L = geo.levels(), D = geo.feature_dim();
+  for (int l = 0; l < L; ++l) {
+    const double inv_h = 1.0 / geo.voxel_m(l);
+    Int3 base;
+    float f[3];
+    for (int a = 0; a < 3; ++a) {
+      const double u = p_W[a] * inv_h;
+      const double b = std::floor(u);
+      base[a] = int(b);
+      f[a] = float(u - b);
+    }
+    float* out = features + size_t(l) * D;
+    std::fill_n(out, D, 0.f);
+    float* jac = jacobian ? jacobian + size_t(l) * D * 3 : nullptr;
+    if (jac) std::fill_n(jac, D * 3, 0.f);
+    for (int c = 0; c < 8; ++c) {
+      const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+      const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
+                  tz = cz ? f[2] : 1.f - f[2];
+      const float* feat = Get(l, base + Int3(cx, cy, cz));
+      const float wc = tx * ty * tz;
+      for (int d = 0; d < D; ++d) out[d] += wc * feat[d];
+      if (!jac) continue;
+      // d w / d p_a: the derivative of the axis factor (±1/h) times the other two factors.
+      const float sx = (cx ? 1.f : -1.f) * float(inv_h), sy = (cy ? 1.f : -1.f) * float(inv_h),
+                  sz = (cz ? 1.f : -1.f) * float(inv_h);
+      const float dw[3] = {sx * ty * tz, tx * sy * tz, tx * ty * sz};
+      for (int d = 0; d < D; ++d)
+        for (int a = 0; a < 3; ++a) jac[d * 3 + a] += dw[a] * feat[d];
+    }
+  }
+}
+
+}  // namespace rim

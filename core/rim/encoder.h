@@ -1,0 +1,73 @@
+// Multi-resolution trilinear feature encoding (§3.1 "Decoding a point"): for every level, the
+// features of the 8 lattice corners around a point, weighted trilinearly, concatenated over
+// levels into L·D features.
+#pragma once
+
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "rim/local_map.h"
+#include "rim/submap_store.h"
+
+namespace rim {
+
+// Training-side encoding against the live local map. Keeps the corner slots and weights of
+// every point so that the backward pass can scatter feature gradients without recomputing.
+struct LocalEncoding {
+  int points = 0;
+  std::vector<int64_t> slots;  // points × L × 8
+  std::vector<float> weights;  // points × L × 8
+};
+
+// Encodes n points (xyz, inside the box) into features (n × L·D).
+void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features);
+
+// Accumulates feature gradients of the voxels a batch touched, per level, without touching
+// anything else: per-slot stamps say whether a slot already has a row this iteration.
+class SparseGradient {
+ public:
+  void Reset(const LocalMap& map);  // sizes the stamp arrays once; cheap afterwards
+  void BeginIteration();
+  // grad_features: points × L·D, as produced by the loss backward.
+  void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features);
+  struct Level {
+    std::vector<uint32_t> stamp;  // per slot
+    std::vector<int32_t> row;     // per slot, valid when stamp == iteration
+    std::vector<int64_t> touched;  // slots with a gradient row
+    std::vector<float> grad;       // touched.size() × D
+  };
+  Level& level(int l) { return levels_[l]; }
+
+ private:
+  std::vector<Level> levels_;
+  uint32_t iteration_ = 0;
+};
+
+// Reads features anywhere in the mapped world: from the live local map inside the box, from the
+// sub-map store elsewhere, zero where nothing is known. Caches store reads for one batch.
+class FeatureReader {
+ public:
+  FeatureReader(const LocalMap& map, const SubmapStore& store);
+  // Features of lattice point g at a level (D floats, valid until the next call to Get).
+  const float* Get(int level, const Int3& g);
+  // Whether the finest voxel with minimum corner g was observed.
+  bool Observed(const Int3& g0);
+
+  // Encodes one point; with `jacobian` (L·D × 3, row-major) also d features / d position.
+  void Encode(const Vec3d& p_W, float* features, float* jacobian);
+
+ private:
+  struct Entry {
+    std::vector<float> features;
+    bool observed = false;
+  };
+  const Entry& Fetch(int level, const Int3& g);
+
+  const LocalMap& map_;
+  const SubmapStore& store_;
+  std::unordered_map<Int3, Entry, Int3Hash, Int3Equal> cache_[kMaxLevels];
+  std::vector<float> zeros_;
+};
+
+}  // namespace rim

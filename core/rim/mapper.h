@@ -1,0 +1,130 @@
+// The RIM mapper: one robot's map. IntegrateScan follows Alg. 1 of the paper; queries, mesh tiles
+// and persistence read the same state. One owner thread calls IntegrateScan; any thread may query,
+// mesh or save concurrently. A reader never sees a half-applied update and waits at most one
+// training iteration (§3.5).
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <shared_mutex>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "rim/config.h"
+#include "rim/mesh.h"
+#include "rim/types.h"
+
+namespace rim {
+
+class Decoder;
+class LocalMap;
+class PointBuffer;
+class SlabSaver;
+class SubmapStore;
+class Trainer;
+class MapGeometry;
+
+struct PosedScan {
+  Eigen::Isometry3d T_world_sensor = Eigen::Isometry3d::Identity();
+  std::vector<Vec3f> points_S;   // ray endpoints, sensor frame
+  std::vector<Vec3f> origins_S;  // per-point ray origins (sensor frame); empty: the sensor origin
+  double timestamp_s = 0;
+};
+
+// Per-frame stage times (§3.4 step 4), seconds; training stages are summed over iterations.
+struct StageTimings {
+  double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0,
+         backward_s = 0, step_s = 0, total_s = 0;
+  int iterations = 0;
+  float loss = 0;  // mean over the frame's iterations
+};
+
+struct QueryResult {
+  std::vector<float> sdf;          // metres; see `observed`
+  std::vector<float> gradient;     // 3 per point, when asked
+  std::vector<uint8_t> observed;   // 0: the finest voxel at the point was never observed, and its
+                                   // sdf is the network's extrapolation, not a measurement
+  uint64_t map_version = 0;
+};
+
+struct TileInfo {
+  Int3 key = Int3::Zero();
+  uint64_t version = 0;
+  Vec3d min_m = Vec3d::Zero(), max_m = Vec3d::Zero();
+};
+
+struct MapperStats {
+  int64_t frames = 0;
+  uint64_t map_version = 0;
+  int64_t buffer_points = 0;
+  int64_t local_map_bytes = 0;
+  int64_t submap_bytes = 0;
+  int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
+  bool decoder_frozen = false;
+};
+
+class Mapper {
+ public:
+  static absl::StatusOr<std::unique_ptr<Mapper>> Create(const MapperConfig& config);
+  // Restores a mapper saved by Save(); a missing or corrupt file is an error naming it.
+  static absl::StatusOr<std::unique_ptr<Mapper>> Load(const std::string& dir);
+  ~Mapper();
+
+  // Validates and integrates one posed scan (Alg. 1). iterations < 0: the configured number;
+  // otherwise clamped to [train.min_iterations, train.iterations]. Invalid input changes nothing.
+  absl::Status IntegrateScan(const PosedScan& scan, int iterations = -1,
+                             StageTimings* timing = nullptr);
+
+  // SDF (and analytic gradient) at n points xyz (world frame), anywhere in the mapped world.
+  absl::Status QuerySdf(const float* xyz, size_t n, bool want_gradient, QueryResult* out) const;
+
+  // Tiles (one per sub-map) whose version is newer than `since_version`.
+  std::vector<TileInfo> ListTiles(uint64_t since_version) const;
+  // Marching cubes over one sub-map's observed voxels; neighbouring tiles share border vertices.
+  absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key) const;
+
+  // Writes the whole state under `dir` as a new checkpoint, switched to atomically.
+  absl::Status Save(const std::string& dir) const;
+
+  const MapperConfig& config() const { return config_; }
+  MapperStats Stats() const;
+  uint64_t map_version() const { return map_version_.load(); }
+  int64_t frames() const { return frames_; }
+
+  // For tests and tools.
+  const LocalMap& local_map() const { return *local_map_; }
+  const SubmapStore& store() const { return *store_; }
+  const Decoder& decoder() const { return *decoder_; }
+
+ private:
+  explicit Mapper(const MapperConfig& config);
+  absl::Status ValidateScan(const PosedScan& scan) const;
+  void SlideTo(const Vec3d& position_W);
+  void Preprocess(const PosedScan& scan);
+  void RemoveOutliers();
+  void BumpVersions(bool decoder_changed);
+  absl::Status SaveState(const std::string& path) const;
+  absl::Status LoadState(const std::string& path);
+
+  MapperConfig config_;
+  std::unique_ptr<MapGeometry> geometry_;
+  std::unique_ptr<LocalMap> local_map_;
+  std::unique_ptr<SubmapStore> store_;
+  std::unique_ptr<SlabSaver> saver_;
+  std::unique_ptr<Decoder> decoder_;
+  std::unique_ptr<PointBuffer> buffer_;
+  std::unique_ptr<Trainer> trainer_;
+  struct OutsideRaysHolder;
+  std::unique_ptr<OutsideRaysHolder> outside_;
+
+  // Writers (the training thread) hold it exclusively per step; readers share it.
+  mutable std::shared_mutex mu_;
+  std::atomic<uint64_t> map_version_{0};
+  int64_t frames_ = 0;
+};
+
+}  // namespace rim

@@ -1,0 +1,179 @@
+// Mapper::Save / Mapper::Load (§5.3 layout, used by the service's SaveSession/LoadSession).
+//
+// A save writes a complete checkpoint into a new folder `ckpt-NNNNNN/` under the session
+// directory (every file written atomically with a checksum), then switches the `CURRENT` file to
+// it atomically and removes older checkpoints. A crash at any point leaves CURRENT naming a
+// complete checkpoint.
+#include <filesystem>
+#include <mutex>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "rim/binary_io.h"
+#include "rim/decoder.h"
+#include "rim/local_map.h"
+#include "rim/mapper.h"
+#include "rim/point_buffer.h"
+#include "rim/slab_saver.h"
+#include "rim/status_macros.h"
+#include "rim/submap_store.h"
+#include "rim/trainer.h"
+
+namespace rim {
+namespace {
+
+constexpr uint32_t kStateVersion = 1;
+namespace fs = std::filesystem;
+
+// Sequence number of a checkpoint folder name, or -1.
+int CheckpointNumber(const std::string& name) {
+  int n;
+  if (name.rfind("ckpt-", 0) != 0 || !absl::SimpleAtoi(name.substr(5), &n)) return -1;
+  return n;
+}
+
+void SerializeLocalMap(const LocalMap& map, ByteWriter* w) {
+  const int D = map.geometry().feature_dim();
+  w->U8(map.placed() ? 1 : 0);
+  for (int a = 0; a < 3; ++a) w->I32(map.coarse_origin()[a]);
+  for (int l = 0; l < map.geometry().levels(); ++l) {
+    const LocalMap::Level& lv = map.level(l);
+    // Only slots that hold data: the dense grids are mostly zero.
+    std::vector<int64_t> slots;
+    std::vector<float> f, m, v;
+    std::vector<int32_t> steps;
+    std::vector<uint8_t> flags;
+    for (size_t s = 0; s < lv.flags.size(); ++s) {
+      if (!(lv.flags[s] & LocalMap::kHasData)) continue;
+      slots.push_back(int64_t(s));
+      f.insert(f.end(), &lv.features[s * D], &lv.features[s * D] + D);
+      m.insert(m.end(), &lv.adam_m[s * D], &lv.adam_m[s * D] + D);
+      v.insert(v.end(), &lv.adam_v[s * D], &lv.adam_v[s * D] + D);
+      steps.push_back(lv.adam_steps[s]);
+      flags.push_back(lv.flags[s]);
+    }
+    w->PodVector(slots);
+    w->PodVector(f);
+    w->PodVector(m);
+    w->PodVector(v);
+    w->PodVector(steps);
+    w->PodVector(flags);
+  }
+}
+
+absl::Status DeserializeLocalMap(ByteReader* r, LocalMap* map) {
+  const int D = map->geometry().feature_dim();
+  uint8_t placed;
+  Int3 origin;
+  RIM_RETURN_IF_ERROR(r->U8(&placed));
+  for (int a = 0; a < 3; ++a) RIM_RETURN_IF_ERROR(r->I32(&origin[a]));
+  if (placed) map->PlaceWithoutLoading(origin);
+  for (int l = 0; l < map->geometry().levels(); ++l) {
+    LocalMap::Level& lv = map->level(l);
+    std::vector<int64_t> slots;
+    std::vector<float> f, m, v;
+    std::vector<int32_t> steps;
+    std::vector<uint8_t> flags;
+    RIM_RETURN_IF_ERROR(r->PodVector(&slots));
+    RIM_RETURN_IF_ERROR(r->PodVector(&f));
+    RIM_RETURN_IF_ERROR(r->PodVector(&m));
+    RIM_RETURN_IF_ERROR(r->PodVector(&v));
+    RIM_RETURN_IF_ERROR(r->PodVector(&steps));
+    RIM_RETURN_IF_ERROR(r->PodVector(&flags));
+    const size_t n = slots.size();
+    if (f.size() != n * D || m.size() != n * D || v.size() != n * D || steps.size() != n ||
+        flags.size() != n)
+      return absl::DataLossError(absl::StrCat("local map level ", l, ": inconsistent array sizes"));
+    for (size_t i = 0; i < n; ++i) {
+      const int64_t s = slots[i];
+      if (s < 0 || size_t(s) >= lv.flags.size())
+        return absl::DataLossError(absl::StrCat("local map level ", l, ": slot out of range"));
+      std::copy_n(&f[i * D], D, &lv.features[s * D]);
+      std::copy_n(&m[i * D], D, &lv.adam_m[s * D]);
+      std::copy_n(&v[i * D], D, &lv.adam_v[s * D]);
+      lv.adam_steps[s] = steps[i];
+      lv.flags[s] = flags[i];
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status Mapper::SaveState(const std::string& path) const {
+  ByteWriter w;
+  w.U32(kStateVersion);
+  w.U64(uint64_t(frames_));
+  w.U64(map_version_.load());
+  decoder_->Serialize(&w);
+  SerializeLocalMap(*local_map_, &w);
+  buffer_->Serialize(&w);
+  std::ostringstream rng;
+  rng << trainer_->sampler().rng();
+  w.String(rng.str());
+  return WriteFileAtomic(path, "STAT", w.data());
+}
+
+absl::Status Mapper::LoadState(const std::string& path) {
+  RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(path, "STAT"));
+  ByteReader r(bytes, path);
+  uint32_t version;
+  uint64_t frames, map_version;
+  RIM_RETURN_IF_ERROR(r.U32(&version));
+  if (version != kStateVersion)
+    return absl::DataLossError(absl::StrCat(path, ": state version ", version, ", expected ", kStateVersion));
+  RIM_RETURN_IF_ERROR(r.U64(&frames));
+  RIM_RETURN_IF_ERROR(r.U64(&map_version));
+  auto with_path = [&](absl::Status s) {
+    return s.ok() ? s : absl::DataLossError(absl::StrCat(path, ": ", s.message()));
+  };
+  RIM_RETURN_IF_ERROR(with_path(decoder_->Deserialize(&r)));
+  RIM_RETURN_IF_ERROR(with_path(DeserializeLocalMap(&r, local_map_.get())));
+  RIM_RETURN_IF_ERROR(with_path(buffer_->Deserialize(&r)));
+  std::string rng_state;
+  RIM_RETURN_IF_ERROR(r.String(&rng_state));
+  RIM_RETURN_IF_ERROR(r.ExpectEnd());
+  std::istringstream in(rng_state);
+  in >> trainer_->sampler().rng();
+  if (in.fail()) return absl::DataLossError(absl::StrCat(path, ": bad sampler random state"));
+  frames_ = int64_t(frames);
+  map_version_ = map_version;
+  return absl::OkStatus();
+}
+
+absl::Status Mapper::Save(const std::string& dir) const {
+  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  saver_->Flush();
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  int next = 0;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) next = std::max(next, CheckpointNumber(e.path().filename()) + 1);
+  const std::string name = absl::StrFormat("ckpt-%06d", next);
+  const std::string ckpt = dir + "/" + name;
+  RIM_RETURN_IF_ERROR(MakeDirs(ckpt));
+  RIM_RETURN_IF_ERROR(WriteFileAtomic(ckpt + "/config.rimf", "CONF", config_.ToString()));
+  RIM_RETURN_IF_ERROR(SaveState(ckpt + "/state.rimf"));
+  RIM_RETURN_IF_ERROR(store_->SaveTo(ckpt + "/submaps"));
+  RIM_RETURN_IF_ERROR(WriteFileAtomic(dir + "/CURRENT", "CURR", name));
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const int n = CheckpointNumber(e.path().filename());
+    if (n >= 0 && n != next) fs::remove_all(e.path(), ec);
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Load(const std::string& dir) {
+  RIM_ASSIGN_OR_RETURN(std::string name, ReadFileChecked(dir + "/CURRENT", "CURR"));
+  if (CheckpointNumber(name) < 0)
+    return absl::DataLossError(absl::StrCat(dir, "/CURRENT names '", name, "', not a checkpoint"));
+  const std::string ckpt = dir + "/" + name;
+  RIM_ASSIGN_OR_RETURN(std::string config_text, ReadFileChecked(ckpt + "/config.rimf", "CONF"));
+  RIM_ASSIGN_OR_RETURN(MapperConfig config, ParseConfigText(config_text, ckpt + "/config.rimf"));
+  RIM_ASSIGN_OR_RETURN(std::unique_ptr<Mapper> mapper, Create(config));
+  RIM_RETURN_IF_ERROR(mapper->LoadState(ckpt + "/state.rimf"));
+  RIM_RETURN_IF_ERROR(mapper->store_->LoadFrom(ckpt + "/submaps"));
+  return mapper;
+}
+
+}  // namespace rim

@@ -1,0 +1,347 @@
+#include "rim/submap_store.h"
+
+#include <algorithm>
+#include <cstring>
+#include <dirent.h>
+#include <unistd.h>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/numbers.h"
+#include "rim/binary_io.h"
+#include "rim/status_macros.h"
+
+namespace rim {
+namespace {
+constexpr char kSubmapKind[] = "SUBM";
+}  // namespace
+
+std::string SubmapKeyName(const Int3& key) {
+  return absl::StrCat(key.x(), "_", key.y(), "_", key.z());
+}
+
+SubmapStore::SubmapStore(const MapGeometry& geometry, const SubmapConfig& config)
+    : geometry_(geometry), config_(config) {}
+
+int64_t SubmapStore::BlockBytes(int level) const {
+  const int64_t b3 = int64_t(config_.block_size) * config_.block_size * config_.block_size;
+  return b3 * geometry_.feature_dim() * int64_t(sizeof(float)) + (level == 0 ? b3 : 0);
+}
+
+std::string SubmapStore::SpillPath(const Int3& key) const {
+  return absl::StrCat(config_.spill_dir, "/submap_", SubmapKeyName(key), ".subm");
+}
+
+SubmapStore::Submap* SubmapStore::FindLocked(const Int3& key) const {
+  auto it = submaps_.find(key);
+  if (it == submaps_.end()) return nullptr;
+  Submap& s = it->second;
+  s.last_access = ++access_clock_;
+  if (s.state == SubmapState::kOnDisk) {
+    auto bytes = ReadFileChecked(SpillPath(key), kSubmapKind);
+    if (!bytes.ok()) {
+      last_error_ = bytes.status();
+      return &s;  // stays on disk; reads see no data and the error is reported
+    }
+    Int3 parsed_key;
+    Submap parsed;
+    absl::Status st = ParseSubmap(*bytes, SpillPath(key), &parsed_key, &parsed);
+    if (!st.ok() || parsed_key != key) {
+      last_error_ = st.ok() ? absl::DataLossError(SpillPath(key) + ": holds another sub-map") : st;
+      return &s;
+    }
+    parsed.version = s.version;  // the version may have moved while it was on disk
+    parsed.state = SubmapState::kFrozen;
+    parsed.last_access = s.last_access;
+    host_bytes_ += parsed.bytes;
+    s = std::move(parsed);
+    unlink(SpillPath(key).c_str());
+    return &s;
+  }
+  return &s;
+}
+
+void SubmapStore::Write(const SlabBatch& batch) {
+  const int D = geometry_.feature_dim();
+  const int B = config_.block_size;
+  const int l = batch.level;
+  const Int3 cells = geometry_.cells(l);
+  std::lock_guard<std::mutex> lock(mu_);
+  Submap* cached_submap = nullptr;
+  Int3 cached_key(INT32_MIN, 0, 0);
+  for (size_t i = 0; i < batch.points.size(); ++i) {
+    const Int3& g = batch.points[i];
+    const Int3 key = geometry_.SubmapOfLattice(l, g);
+    if (!cached_submap || key != cached_key) {
+      cached_submap = FindLocked(key);
+      if (!cached_submap) {
+        cached_submap = &submaps_[key];
+        cached_submap->last_access = ++access_clock_;
+      }
+      cached_key = key;
+    }
+    const Int3 local = g - key.cwiseProduct(cells);
+    const Int3 block_key = FloorDiv(local, Int3::Constant(B));
+    auto [it, inserted] = cached_submap->blocks[l].try_emplace(block_key);
+    Block& block = it->second;
+    if (inserted) {
+      block.features.assign(size_t(B) * B * B * D, 0.f);
+      if (l == 0) block.observed.assign(size_t(B) * B * B, 0);
+      cached_submap->bytes += BlockBytes(l);
+      host_bytes_ += BlockBytes(l);
+    }
+    const Int3 in = local - block_key * B;
+    const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
+    std::memcpy(&block.features[idx * D], &batch.features[i * D], sizeof(float) * D);
+    if (l == 0 && i < batch.observed.size()) block.observed[idx] = batch.observed[i];
+  }
+}
+
+bool SubmapStore::Read(int level, const Int3& g, float* features, uint8_t* observed) const {
+  const int D = geometry_.feature_dim();
+  const int B = config_.block_size;
+  const Int3 key = geometry_.SubmapOfLattice(level, g);
+  std::lock_guard<std::mutex> lock(mu_);
+  const Submap* s = FindLocked(key);
+  if (!s || s->state == SubmapState::kOnDisk) return false;
+  const Int3 local = g - key.cwiseProduct(geometry_.cells(level));
+  const Int3 block_key = FloorDiv(local, Int3::Constant(B));
+  auto it = s->blocks[level].find(block_key);
+  if (it == s->blocks[level].end()) return false;
+  const Int3 in = local - block_key * B;
+  const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
+  std::memcpy(features, &it->second.features[idx * D], sizeof(float) * D);
+  if (observed) *observed = level == 0 ? it->second.observed[idx] : 0;
+  return true;
+}
+
+std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
+  const int B = config_.block_size;
+  std::vector<Int3> out;
+  std::lock_guard<std::mutex> lock(mu_);
+  const Submap* s = FindLocked(key);
+  if (!s) return out;
+  const Int3 base = key.cwiseProduct(geometry_.cells(0));
+  for (const auto& [block_key, block] : s->blocks[0]) {
+    for (int x = 0; x < B; ++x)
+      for (int y = 0; y < B; ++y)
+        for (int z = 0; z < B; ++z) {
+          if (block.observed[(size_t(x) * B + y) * B + z])
+            out.push_back(base + block_key * B + Int3(x, y, z));
+        }
+  }
+  return out;
+}
+
+void SubmapStore::SetVersion(const Int3& key, uint64_t version) {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto [it, inserted] = submaps_.try_emplace(key);
+  if (inserted) it->second.last_access = ++access_clock_;
+  it->second.version = version;
+}
+
+void SubmapStore::SetAllVersions(uint64_t version) {
+  std::lock_guard<std::mutex> lock(mu_);
+  for (auto& [key, s] : submaps_) s.version = version;
+}
+
+std::vector<std::pair<Int3, uint64_t>> SubmapStore::Versions() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<std::pair<Int3, uint64_t>> out;
+  for (const auto& [key, s] : submaps_) out.emplace_back(key, s.version);
+  return out;
+}
+
+std::vector<Int3> SubmapStore::Keys() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<Int3> out;
+  for (const auto& [key, s] : submaps_) out.push_back(key);
+  return out;
+}
+
+absl::Status SubmapStore::UpdateActivity(const Int3& robot_submap) {
+  std::lock_guard<std::mutex> lock(mu_);
+  for (auto& [key, s] : submaps_) {
+    const float dist = (key - robot_submap).cast<float>().norm();
+    if (dist <= config_.active_radius_submaps) {
+      if (s.state == SubmapState::kOnDisk) FindLocked(key);  // revisit re-activates
+      s.state = SubmapState::kActive;
+    } else if (s.state == SubmapState::kActive) {
+      s.state = SubmapState::kFrozen;
+    }
+  }
+  if (config_.host_budget_bytes <= 0 || config_.spill_dir.empty()) return absl::OkStatus();
+  if (host_bytes_ <= config_.host_budget_bytes) return absl::OkStatus();
+  std::vector<std::pair<uint64_t, Int3>> frozen;
+  for (const auto& [key, s] : submaps_)
+    if (s.state == SubmapState::kFrozen && s.bytes > 0) frozen.emplace_back(s.last_access, key);
+  std::sort(frozen.begin(), frozen.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  RIM_RETURN_IF_ERROR(MakeDirs(config_.spill_dir));
+  for (const auto& [access, key] : frozen) {
+    if (host_bytes_ <= config_.host_budget_bytes) break;
+    Submap& s = submaps_[key];
+    std::string bytes;
+    SerializeLocked(key, s, &bytes);
+    RIM_RETURN_IF_ERROR(WriteFileAtomic(SpillPath(key), kSubmapKind, bytes));
+    for (auto& level : s.blocks) level.clear();
+    host_bytes_ -= s.bytes;
+    s.bytes = 0;
+    s.state = SubmapState::kOnDisk;
+  }
+  return absl::OkStatus();
+}
+
+SubmapStoreStats SubmapStore::Stats() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  SubmapStoreStats st;
+  for (const auto& [key, s] : submaps_) {
+    if (s.state == SubmapState::kActive) ++st.active;
+    if (s.state == SubmapState::kFrozen) ++st.frozen;
+    if (s.state == SubmapState::kOnDisk) ++st.on_disk;
+    for (const auto& level : s.blocks) st.blocks += int64_t(level.size());
+  }
+  st.host_bytes = host_bytes_;
+  return st;
+}
+
+absl::Status SubmapStore::last_error() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return last_error_;
+}
+
+void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string* out) const {
+  ByteWriter w;
+  w.I32(key.x()); w.I32(key.y()); w.I32(key.z());
+  w.U64(s.version);
+  w.I32(geometry_.levels());
+  w.I32(geometry_.feature_dim());
+  w.I32(config_.block_size);
+  for (int l = 0; l < geometry_.levels(); ++l) {
+    // Sorted by block key so that the same content always gives the same bytes.
+    std::vector<const std::pair<const Int3, Block>*> blocks;
+    for (const auto& kv : s.blocks[l]) blocks.push_back(&kv);
+    std::sort(blocks.begin(), blocks.end(), [](const auto* a, const auto* b) {
+      return std::lexicographical_compare(a->first.data(), a->first.data() + 3, b->first.data(),
+                                          b->first.data() + 3);
+    });
+    w.U64(blocks.size());
+    for (const auto* kv : blocks) {
+      w.I32(kv->first.x()); w.I32(kv->first.y()); w.I32(kv->first.z());
+      w.FloatArray(kv->second.features.data(), kv->second.features.size());
+      w.PodVector(kv->second.observed);
+    }
+  }
+  *out = w.Release();
+}
+
+absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  const Submap* s = FindLocked(key);
+  if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
+  std::string out;
+  SerializeLocked(key, *s, &out);
+  return out;
+}
+
+absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::string& context,
+                                      Int3* key_out, Submap* out) const {
+  ByteReader r(bytes, context);
+  Int3 key;
+  uint64_t version;
+  int32_t levels, dim, block;
+  RIM_RETURN_IF_ERROR(r.I32(&key.x()));
+  RIM_RETURN_IF_ERROR(r.I32(&key.y()));
+  RIM_RETURN_IF_ERROR(r.I32(&key.z()));
+  RIM_RETURN_IF_ERROR(r.U64(&version));
+  RIM_RETURN_IF_ERROR(r.I32(&levels));
+  RIM_RETURN_IF_ERROR(r.I32(&dim));
+  RIM_RETURN_IF_ERROR(r.I32(&block));
+  if (levels != geometry_.levels() || dim != geometry_.feature_dim() || block != config_.block_size)
+    return absl::DataLossError(absl::StrCat(context, ": sub-map layout (levels ", levels, ", dim ",
+                                            dim, ", block ", block, ") does not match the config"));
+  const size_t b3 = size_t(block) * block * block;
+  Submap s;
+  s.version = version;
+  s.state = SubmapState::kFrozen;
+  for (int l = 0; l < levels; ++l) {
+    uint64_t n;
+    RIM_RETURN_IF_ERROR(r.U64(&n));
+    if (n > r.remaining() / 12) return absl::DataLossError(absl::StrCat(context, ": bad block count"));
+    for (uint64_t i = 0; i < n; ++i) {
+      Int3 bk;
+      RIM_RETURN_IF_ERROR(r.I32(&bk.x()));
+      RIM_RETURN_IF_ERROR(r.I32(&bk.y()));
+      RIM_RETURN_IF_ERROR(r.I32(&bk.z()));
+      Block b;
+      RIM_RETURN_IF_ERROR(r.FloatArray(&b.features));
+      RIM_RETURN_IF_ERROR(r.PodVector(&b.observed));
+      if (b.features.size() != b3 * dim || b.observed.size() != (l == 0 ? b3 : 0))
+        return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
+      s.blocks[l].emplace(bk, std::move(b));
+      s.bytes += BlockBytes(l);
+    }
+  }
+  RIM_RETURN_IF_ERROR(r.ExpectEnd());
+  *key_out = key;
+  *out = std::move(s);
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std::string& context) {
+  Int3 key;
+  Submap s;
+  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, &key, &s));
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = submaps_.find(key);
+  if (it != submaps_.end()) {
+    host_bytes_ -= it->second.bytes;
+    s.state = it->second.state == SubmapState::kActive ? SubmapState::kActive : SubmapState::kFrozen;
+  }
+  s.last_access = ++access_clock_;
+  host_bytes_ += s.bytes;
+  submaps_[key] = std::move(s);
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::SaveTo(const std::string& dir) const {
+  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  for (const Int3& key : Keys()) {
+    RIM_ASSIGN_OR_RETURN(std::string bytes, SerializeSubmap(key));
+    RIM_RETURN_IF_ERROR(
+        WriteFileAtomic(absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm"), kSubmapKind, bytes));
+  }
+  // Files of sub-maps that no longer exist would come back on load: remove them.
+  std::vector<Int3> keys = Keys();
+  if (DIR* d = opendir(dir.c_str())) {
+    while (dirent* e = readdir(d)) {
+      std::string name = e->d_name;
+      if (name.rfind("submap_", 0) != 0 || name.size() < 12) continue;
+      bool keep = false;
+      for (const Int3& k : keys) keep |= name == absl::StrCat("submap_", SubmapKeyName(k), ".subm");
+      if (!keep) unlink((dir + "/" + name).c_str());
+    }
+    closedir(d);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::LoadFrom(const std::string& dir) {
+  DIR* d = opendir(dir.c_str());
+  if (!d) return absl::NotFoundError(absl::StrCat("cannot open sub-map directory ", dir));
+  std::vector<std::string> files;
+  while (dirent* e = readdir(d)) {
+    std::string name = e->d_name;
+    if (name.rfind("submap_", 0) == 0 && name.size() > 5 && name.substr(name.size() - 5) == ".subm")
+      files.push_back(dir + "/" + name);
+  }
+  closedir(d);
+  std::sort(files.begin(), files.end());
+  for (const std::string& f : files) {
+    RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(f, kSubmapKind));
+    RIM_RETURN_IF_ERROR(DeserializeSubmap(bytes, f));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace rim

@@ -1,0 +1,97 @@
+// The global map (§3.3): sub-maps the size of the local box, keyed by integer index, each storing
+// only the blocks (block_size³ voxels) that hold data. Thread-safe: the background saver writes
+// while queries and the mesher read.
+//
+// A block is kept when any of its voxels was ever trained or observed. That is slightly more than
+// "blocks with observed voxels": free-space voxels next to surfaces carry the positive SDF that
+// queries and meshing need, and dropping them would make save/restore lossy.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "rim/local_map.h"
+#include "rim/map_geometry.h"
+
+namespace rim {
+
+enum class SubmapState { kActive = 0, kFrozen = 1, kOnDisk = 2 };
+
+struct SubmapStoreStats {
+  int active = 0, frozen = 0, on_disk = 0;
+  int64_t blocks = 0;
+  int64_t host_bytes = 0;
+};
+
+class SubmapStore {
+ public:
+  SubmapStore(const MapGeometry& geometry, const SubmapConfig& config);
+
+  // Stores the voxels of a slab that left the local map, replacing what was there.
+  void Write(const SlabBatch& batch);
+  // Reads one voxel; false (and nothing written) when the store has no data there.
+  bool Read(int level, const Int3& g, float* features, uint8_t* observed) const;
+  // Finest-level lattice indices of observed voxels stored in a sub-map.
+  std::vector<Int3> ObservedCells(const Int3& key) const;
+
+  // Per-sub-map versions (the map version of its last change); creates the entry if needed.
+  void SetVersion(const Int3& key, uint64_t version);
+  void SetAllVersions(uint64_t version);
+  std::vector<std::pair<Int3, uint64_t>> Versions() const;
+
+  // Freeze/activate policy: sub-maps within config.active_radius_submaps of the robot's sub-map
+  // are active, the rest frozen; then, while host memory exceeds the budget, the least recently
+  // used frozen sub-maps spill to disk. A spilled sub-map reloads when it is read again.
+  absl::Status UpdateActivity(const Int3& robot_submap);
+  SubmapStoreStats Stats() const;
+  std::vector<Int3> Keys() const;
+
+  // Whole-store persistence: one checksummed file per sub-map under `dir`.
+  absl::Status SaveTo(const std::string& dir) const;
+  absl::Status LoadFrom(const std::string& dir);
+  // One sub-map as bytes and back (also used for spilling). Deserialize replaces the sub-map.
+  absl::StatusOr<std::string> SerializeSubmap(const Int3& key) const;
+  absl::Status DeserializeSubmap(const std::string& bytes, const std::string& context);
+
+  // Sticky error of a failed reload of a spilled sub-map (reads then see no data).
+  absl::Status last_error() const;
+
+ private:
+  struct Block {
+    std::vector<float> features;   // block³ · D
+    std::vector<uint8_t> observed;  // block³, level 0 only
+  };
+  struct Submap {
+    std::unordered_map<Int3, Block, Int3Hash, Int3Equal> blocks[kMaxLevels];
+    uint64_t version = 0;
+    SubmapState state = SubmapState::kActive;
+    uint64_t last_access = 0;
+    int64_t bytes = 0;
+  };
+
+  // Caller holds mu_. Reloads a spilled sub-map; returns null if the key is unknown.
+  Submap* FindLocked(const Int3& key) const;
+  absl::Status ParseSubmap(const std::string& bytes, const std::string& context, Int3* key,
+                           Submap* out) const;
+  void SerializeLocked(const Int3& key, const Submap& s, std::string* out) const;
+  std::string SpillPath(const Int3& key) const;
+  int64_t BlockBytes(int level) const;
+
+  MapGeometry geometry_;
+  SubmapConfig config_;
+  mutable std::mutex mu_;
+  mutable std::unordered_map<Int3, Submap, Int3Hash, Int3Equal> submaps_;
+  mutable uint64_t access_clock_ = 0;
+  mutable int64_t host_bytes_ = 0;
+  mutable absl::Status last_error_;
+};
+
+std::string SubmapKeyName(const Int3& key);
+
+}  // namespace rim

@@ -1,0 +1,123 @@
+#include "rim/trainer.h"
+
+#include <chrono>
+#include <cmath>
+
+#include "rim/train_step.h"
+
+namespace rim {
+namespace {
+double Now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+// Eikonal probes are taken around at most this many endpoint samples per iteration.
+constexpr int kMaxEikonalPoints = 1024;
+}  // namespace
+
+Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
+    : config_(config),
+      map_(map),
+      decoder_(decoder),
+      sampler_(config.sampler, config.train.sigma_m, config.sampler.seed) {}
+
+void Trainer::AddEikonalProbes() {
+  const float h = float(0.5 * map_->geometry().leaf_m());
+  const Vec3f lo = map_->min_m().cast<float>() + Vec3f::Constant(h + 1e-3f);
+  const Vec3f hi = map_->max_m().cast<float>() - Vec3f::Constant(h + 1e-3f);
+  int added = 0;
+  for (int32_t idx : batch_.endpoints) {
+    if (added >= kMaxEikonalPoints) break;
+    const Vec3f p(batch_.xyz[3 * idx], batch_.xyz[3 * idx + 1], batch_.xyz[3 * idx + 2]);
+    if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) continue;
+    for (int a = 0; a < 3; ++a)
+      for (float s : {h, -h}) {
+        Vec3f q = p;
+        q[a] += s;
+        xyz_.insert(xyz_.end(), {q.x(), q.y(), q.z()});
+      }
+    ++added;
+  }
+}
+
+absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideRays& outside,
+                                       bool train_decoder, IterationTiming* timing) {
+  if (!grad_ready_) {
+    grad_.Reset(*map_);
+    grad_ready_ = true;
+  }
+  double t0 = Now();
+  sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_);
+  if (batch_.size() == 0) return 0.f;
+  xyz_ = batch_.xyz;
+  if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
+  const int rows = int(xyz_.size() / 3);
+  double t1 = Now();
+  features_.resize(size_t(rows) * map_->geometry().encoding_dim());
+  EncodeLocal(*map_, xyz_.data(), rows, &encoding_, features_.data());
+  double t2 = Now();
+
+  TrainStepInput in;
+  in.features = features_.data();
+  in.rows = rows;
+  in.labelled = int(batch_.size());
+  in.labels = batch_.labels.data();
+  in.sigma_m = config_.train.sigma_m;
+  in.eikonal_weight = config_.train.eikonal_weight;
+  in.eikonal_step_m = float(0.5 * map_->geometry().leaf_m());
+  in.train_decoder = train_decoder;
+  auto out = RunTrainStep(*decoder_, in);
+  if (!out.ok()) return out.status();
+  double t3 = Now();
+
+  grad_.BeginIteration();
+  grad_.Scatter(*map_, encoding_, out->grad_features.data());
+  ApplyFeatureUpdates();
+  if (train_decoder) {
+    const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
+                          config_.train.adam_beta2, config_.train.adam_eps};
+    decoder_->Step(hyper, out->grad_params);
+  }
+  MarkObserved();
+  double t4 = Now();
+  if (timing) {
+    timing->sample_s += t1 - t0;
+    timing->encode_s += t2 - t1;
+    timing->forward_s += out->forward_s;
+    timing->backward_s += out->backward_s + (t3 - t2 - out->forward_s - out->backward_s);
+    timing->step_s += t4 - t3;
+  }
+  return out->loss;
+}
+
+void Trainer::ApplyFeatureUpdates() {
+  const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
+                        config_.train.adam_beta2, config_.train.adam_eps};
+  const int D = map_->geometry().feature_dim();
+  for (int l = 0; l < map_->geometry().levels(); ++l) {
+    LocalMap::Level& lv = map_->level(l);
+    SparseGradient::Level& g = grad_.level(l);
+    // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
+    for (size_t r = 0; r < g.touched.size(); ++r) {
+      const int64_t slot = g.touched[r];
+      const int step = ++lv.adam_steps[slot];
+      AdamUpdate(hyper, step, D, &g.grad[r * D], &lv.features[slot * D], &lv.adam_m[slot * D],
+                 &lv.adam_v[slot * D]);
+      lv.flags[slot] |= LocalMap::kHasData;
+    }
+  }
+}
+
+void Trainer::MarkObserved() {
+  LocalMap::Level& lv = map_->level(0);
+  const double inv_s = 1.0 / map_->geometry().leaf_m();
+  const float band = config_.sampler.observed_band_m;
+  for (size_t i = 0; i < batch_.size(); ++i) {
+    if (std::abs(batch_.labels[i]) >= band) continue;
+    const Int3 g(int(std::floor(batch_.xyz[3 * i] * inv_s)),
+                 int(std::floor(batch_.xyz[3 * i + 1] * inv_s)),
+                 int(std::floor(batch_.xyz[3 * i + 2] * inv_s)));
+    lv.flags[map_->Slot(0, g)] |= LocalMap::kObserved | LocalMap::kHasData;
+  }
+}
+
+}  // namespace rim

@@ -1,0 +1,48 @@
+// One training iteration (§3.4 step 3): sample rays, encode, decode, loss, backward, then Adam on
+// the decoder and on only the voxels the batch touched.
+#pragma once
+
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "rim/config.h"
+#include "rim/decoder.h"
+#include "rim/encoder.h"
+#include "rim/local_map.h"
+#include "rim/sampler.h"
+
+namespace rim {
+
+struct IterationTiming {
+  double sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0, step_s = 0;
+};
+
+class Trainer {
+ public:
+  Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder);
+
+  // Runs one iteration; returns the loss (0 when there is nothing to learn from yet).
+  absl::StatusOr<float> Iterate(const PointBuffer& buffer, const OutsideRays& outside,
+                                bool train_decoder, IterationTiming* timing);
+
+  Sampler& sampler() { return sampler_; }
+  const SampleBatch& last_batch() const { return batch_; }
+
+ private:
+  void AddEikonalProbes();
+  void ApplyFeatureUpdates();
+  void MarkObserved();
+
+  MapperConfig config_;
+  LocalMap* map_;
+  Decoder* decoder_;
+  Sampler sampler_;
+  SampleBatch batch_;
+  std::vector<float> xyz_;  // labelled samples, then eikonal probes
+  LocalEncoding encoding_;
+  std::vector<float> features_;
+  SparseGradient grad_;
+  bool grad_ready_ = false;
+};
+
+}  // namespace rim
