@@ -1,5 +1,6 @@
 #include "rim/config.h"
 
+#include <charconv>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -66,7 +67,9 @@ bool Parse(const std::string& s, std::string* out) {
   *out = s;
   return true;
 }
-bool Parse(const std::string& s, float* out) { return absl::SimpleAtof(s, out) && std::isfinite(*out); }
+bool Parse(const std::string& s, float* out) {
+  return absl::SimpleAtof(s, out) && std::isfinite(*out);
+}
 bool Parse(const std::string& s, int* out) { return absl::SimpleAtoi(s, out); }
 bool Parse(const std::string& s, int64_t* out) { return absl::SimpleAtoi(s, out); }
 bool Parse(const std::string& s, uint64_t* out) { return absl::SimpleAtoi(s, out); }
@@ -79,6 +82,13 @@ bool Parse(const std::string& s, bool* out) {
 
 std::string Format(const std::string& v) { return v; }
 std::string Format(bool v) { return v ? "true" : "false"; }
+// The shortest text that parses back to the same float, so that ToString → ParseConfigText is
+// exact: checkpoints store the config as this text (absl::StrCat keeps only 6 digits).
+std::string Format(float v) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+  return std::string(buf, r.ptr);
+}
 template <typename T>
 std::string Format(T v) {
   return absl::StrCat(v);
@@ -103,35 +113,49 @@ absl::Status MapperConfig::Validate() const {
   if (g.feature_dim < 1 || g.feature_dim > 64) return Bad("grid.feature_dim", "must be in [1, 64]");
   const double coarse = g.leaf_size_m * double(1 << (g.levels - 1));
   if (!(g.half_extent_x_m > 0.f) || !IsMultiple(2.0 * g.half_extent_x_m, coarse))
-    return Bad("grid.half_extent_x_m", absl::StrCat("must be > 0 with 2x a multiple of the coarsest voxel (", coarse, " m)"));
+    return Bad(
+        "grid.half_extent_x_m",
+        absl::StrCat("must be > 0 with 2x a multiple of the coarsest voxel (", coarse, " m)"));
   if (!(g.half_extent_y_m > 0.f) || !IsMultiple(2.0 * g.half_extent_y_m, coarse))
-    return Bad("grid.half_extent_y_m", absl::StrCat("must be > 0 with 2x a multiple of the coarsest voxel (", coarse, " m)"));
+    return Bad(
+        "grid.half_extent_y_m",
+        absl::StrCat("must be > 0 with 2x a multiple of the coarsest voxel (", coarse, " m)"));
   if (!(g.z_max_m > g.z_min_m)) return Bad("grid.z_max_m", "must be > grid.z_min_m");
   if (!IsMultiple(double(g.z_max_m) - g.z_min_m, coarse))
-    return Bad("grid.z_max_m", absl::StrCat("z extent must be a multiple of the coarsest voxel (", coarse, " m)"));
-  const double cells = (2.0 * g.half_extent_x_m / g.leaf_size_m) * (2.0 * g.half_extent_y_m / g.leaf_size_m) *
+    return Bad("grid.z_max_m",
+               absl::StrCat("z extent must be a multiple of the coarsest voxel (", coarse, " m)"));
+  const double cells = (2.0 * g.half_extent_x_m / g.leaf_size_m) *
+                       (2.0 * g.half_extent_y_m / g.leaf_size_m) *
                        ((g.z_max_m - g.z_min_m) / g.leaf_size_m);
   if (cells > 4e8) return Bad("grid.leaf_size_m", "gives a local map of more than 4e8 voxels");
 
-  if (decoder.hidden_layers < 0 || decoder.hidden_layers > 8) return Bad("decoder.hidden_layers", "must be in [0, 8]");
-  if (decoder.hidden_width < 1 || decoder.hidden_width > 1024) return Bad("decoder.hidden_width", "must be in [1, 1024]");
+  if (decoder.hidden_layers < 0 || decoder.hidden_layers > 8)
+    return Bad("decoder.hidden_layers", "must be in [0, 8]");
+  if (decoder.hidden_width < 1 || decoder.hidden_width > 1024)
+    return Bad("decoder.hidden_width", "must be in [1, 1024]");
   if (decoder.freeze_after_frames < 0) return Bad("decoder.freeze_after_frames", "must be >= 0");
 
-  if (train.iterations < 0 || train.iterations > 10000) return Bad("train.iterations", "must be in [0, 10000]");
+  if (train.iterations < 0 || train.iterations > 10000)
+    return Bad("train.iterations", "must be in [0, 10000]");
   if (train.min_iterations < 0 || train.min_iterations > train.iterations)
     return Bad("train.min_iterations", "must be in [0, train.iterations]");
   if (!(train.learning_rate > 0.f)) return Bad("train.learning_rate", "must be > 0");
   if (!(train.sigma_m > 0.f)) return Bad("train.sigma_m", "must be > 0");
   if (!(train.eikonal_weight >= 0.f)) return Bad("train.eikonal_weight", "must be >= 0");
-  if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f)) return Bad("train.adam_beta1", "must be in [0, 1)");
-  if (!(train.adam_beta2 >= 0.f && train.adam_beta2 < 1.f)) return Bad("train.adam_beta2", "must be in [0, 1)");
+  if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f))
+    return Bad("train.adam_beta1", "must be in [0, 1)");
+  if (!(train.adam_beta2 >= 0.f && train.adam_beta2 < 1.f))
+    return Bad("train.adam_beta2", "must be in [0, 1)");
   if (!(train.adam_eps > 0.f)) return Bad("train.adam_eps", "must be > 0");
 
   if (sampler.rays_per_iteration < 1 || sampler.rays_per_iteration > 1 << 20)
     return Bad("sampler.rays_per_iteration", "must be in [1, 1048576]");
-  if (sampler.surface_samples < 0 || sampler.surface_samples > 64) return Bad("sampler.surface_samples", "must be in [0, 64]");
-  if (sampler.free_samples < 0 || sampler.free_samples > 64) return Bad("sampler.free_samples", "must be in [0, 64]");
-  if (!(sampler.free_min_ratio >= 0.f && sampler.free_min_ratio < sampler.free_max_ratio && sampler.free_max_ratio <= 1.f))
+  if (sampler.surface_samples < 0 || sampler.surface_samples > 64)
+    return Bad("sampler.surface_samples", "must be in [0, 64]");
+  if (sampler.free_samples < 0 || sampler.free_samples > 64)
+    return Bad("sampler.free_samples", "must be in [0, 64]");
+  if (!(sampler.free_min_ratio >= 0.f && sampler.free_min_ratio < sampler.free_max_ratio &&
+        sampler.free_max_ratio <= 1.f))
     return Bad("sampler.free_min_ratio", "must satisfy 0 <= free_min_ratio < free_max_ratio <= 1");
   if (sampler.outside_rays_per_iteration < 0 || sampler.outside_rays_per_iteration > 1 << 20)
     return Bad("sampler.outside_rays_per_iteration", "must be in [0, 1048576]");
@@ -144,15 +168,18 @@ absl::Status MapperConfig::Validate() const {
   if (buffer.outlier_period_frames < 1) return Bad("buffer.outlier_period_frames", "must be >= 1");
   if (!(buffer.outlier_threshold_m > 0.f)) return Bad("buffer.outlier_threshold_m", "must be > 0");
 
-  if (submap.block_size < 2 || submap.block_size > 64) return Bad("submap.block_size", "must be in [2, 64]");
-  if (!(submap.active_radius_submaps >= 0.f)) return Bad("submap.active_radius_submaps", "must be >= 0");
+  if (submap.block_size < 2 || submap.block_size > 64)
+    return Bad("submap.block_size", "must be in [2, 64]");
+  if (!(submap.active_radius_submaps >= 0.f))
+    return Bad("submap.active_radius_submaps", "must be >= 0");
   if (submap.host_budget_bytes < 0) return Bad("submap.host_budget_bytes", "must be >= 0");
   if (submap.host_budget_bytes > 0 && submap.spill_dir.empty())
     return Bad("submap.spill_dir", "must be set when submap.host_budget_bytes > 0");
 
   if (!(mesh.resolution_m > 0.f) || !IsMultiple(grid.leaf_size_m, mesh.resolution_m))
     return Bad("mesh.resolution_m", "must be > 0 and divide grid.leaf_size_m");
-  if (grid.leaf_size_m / mesh.resolution_m > 16.5f) return Bad("mesh.resolution_m", "must be >= grid.leaf_size_m / 16");
+  if (grid.leaf_size_m / mesh.resolution_m > 16.5f)
+    return Bad("mesh.resolution_m", "must be >= grid.leaf_size_m / 16");
   return absl::OkStatus();
 }
 
@@ -203,7 +230,8 @@ absl::StatusOr<MapperConfig> MakePreset(const std::string& name) {
     c.buffer.outlier_removal = true;
     c.buffer.max_range_m = 40.f;
   } else {
-    return absl::InvalidArgumentError(absl::StrCat("unknown preset '", name, "'; known presets: maicity, ",
+    return absl::InvalidArgumentError(absl::StrCat("unknown preset '", name,
+                                                   "'; known presets: maicity, ",
                                                    "maicity_online, kitti, replica, campus"));
   }
   return c;
@@ -211,7 +239,8 @@ absl::StatusOr<MapperConfig> MakePreset(const std::string& name) {
 
 absl::Status ApplyOverride(const std::string& key, const std::string& value, MapperConfig* config) {
   if (key == "preset") {
-    return absl::InvalidArgumentError("preset cannot be overridden; choose it when creating the config");
+    return absl::InvalidArgumentError(
+        "preset cannot be overridden; choose it when creating the config");
   }
   bool found = false, ok = false;
   std::string v(absl::StripAsciiWhitespace(value));
@@ -223,7 +252,9 @@ absl::Status ApplyOverride(const std::string& key, const std::string& value, Map
     if (ok) field = parsed;
   });
   if (!found) return absl::InvalidArgumentError(absl::StrCat("unknown config key '", key, "'"));
-  if (!ok) return absl::InvalidArgumentError(absl::StrCat("config key '", key, "': cannot parse value '", v, "'"));
+  if (!ok)
+    return absl::InvalidArgumentError(
+        absl::StrCat("config key '", key, "': cannot parse value '", v, "'"));
   return absl::OkStatus();
 }
 
@@ -232,7 +263,8 @@ absl::Status ApplyOverrides(const std::vector<std::string>& key_values, MapperCo
   for (const std::string& kv : key_values) {
     size_t eq = kv.find('=');
     if (eq == std::string::npos)
-      return absl::InvalidArgumentError(absl::StrCat("override '", kv, "' is not of the form key=value"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("override '", kv, "' is not of the form key=value"));
     std::string key(absl::StripAsciiWhitespace(kv.substr(0, eq)));
     RIM_RETURN_IF_ERROR(ApplyOverride(key, kv.substr(eq + 1), &copy));
   }
@@ -241,7 +273,8 @@ absl::Status ApplyOverrides(const std::vector<std::string>& key_values, MapperCo
   return absl::OkStatus();
 }
 
-absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text, const std::string& source_name) {
+absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text,
+                                             const std::string& source_name) {
   std::string preset = "maicity";
   std::vector<std::string> overrides;
   int line_no = 0;
@@ -252,7 +285,8 @@ absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text, const std:
     if (line.empty()) continue;
     size_t eq = line.find('=');
     if (eq == absl::string_view::npos)
-      return absl::InvalidArgumentError(absl::StrCat(source_name, ":", line_no, ": expected key = value"));
+      return absl::InvalidArgumentError(
+          absl::StrCat(source_name, ":", line_no, ": expected key = value"));
     std::string key(absl::StripAsciiWhitespace(line.substr(0, eq)));
     std::string value(absl::StripAsciiWhitespace(line.substr(eq + 1)));
     if (key == "preset") {
@@ -262,13 +296,15 @@ absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text, const std:
     }
   }
   auto config = MakePreset(preset);
-  if (!config.ok()) return absl::InvalidArgumentError(absl::StrCat(source_name, ": ", config.status().message()));
+  if (!config.ok())
+    return absl::InvalidArgumentError(absl::StrCat(source_name, ": ", config.status().message()));
   absl::Status s = ApplyOverrides(overrides, &*config);
   if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat(source_name, ": ", s.message()));
   return config;
 }
 
-absl::StatusOr<MapperConfig> LoadConfigFile(const std::string& path, const std::vector<std::string>& overrides) {
+absl::StatusOr<MapperConfig> LoadConfigFile(const std::string& path,
+                                            const std::vector<std::string>& overrides) {
   std::ifstream in(path);
   if (!in) return absl::NotFoundError(absl::StrCat("cannot open config file ", path));
   std::stringstream ss;

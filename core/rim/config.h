@@ -37,7 +37,7 @@ struct TrainConfig {
   int iterations = 30;
   int min_iterations = 3;  // lower bound when a caller asks for fewer iterations under load
   float learning_rate = 1e-2f;
-  float sigma_m = 0.05f;  // σ of S(d) = 1/(1+exp(d/σ)) and of the surface-sample noise
+  float sigma_m = 0.05f;       // σ of S(d) = 1/(1+exp(d/σ)) and of the surface-sample noise
   float eikonal_weight = 0.f;  // 0 disables the eikonal term
   float adam_beta1 = 0.9f;
   float adam_beta2 = 0.999f;
@@ -62,7 +62,7 @@ struct SamplerConfig {
 struct BufferConfig {
   int max_points = 1000000;
   int max_points_per_frame = 10000;
-  float min_range_m = 0.3f;   // closer returns hit the robot itself
+  float min_range_m = 0.3f;  // closer returns hit the robot itself
   float max_range_m = 60.f;
   bool outlier_removal = false;
   int outlier_period_frames = 10;
@@ -114,6 +114,7 @@ absl::Status ApplyOverrides(const std::vector<std::string>& key_values, MapperCo
 // line selects the base), and overrides, in that order of precedence (last wins). Validated.
 absl::StatusOr<MapperConfig> LoadConfigFile(const std::string& path,
                                             const std::vector<std::string>& overrides = {});
-absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text, const std::string& source_name);
+absl::StatusOr<MapperConfig> ParseConfigText(const std::string& text,
+                                             const std::string& source_name);
 
 }  // namespace rim

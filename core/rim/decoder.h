@@ -5,6 +5,7 @@
 // whatever the batch, which seamless meshing across tiles relies on.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -21,6 +22,32 @@ struct AdamHyper {
 // One Adam update of n parameters with their own step count (already incremented, ≥ 1).
 void AdamUpdate(const AdamHyper& h, int step, int n, const float* grad, float* param, float* m,
                 float* v);
+
+// Adam's bias corrections per step count, computed once: the sparse feature update runs one
+// small Adam row per touched voxel, and two pow() calls per row would dominate it.
+class AdamBiasTable {
+ public:
+  explicit AdamBiasTable(const AdamHyper& h) : h_(h) {}
+  // lr / (1 − β1^t) and 1 / sqrt(1 − β2^t).
+  void Get(int step, float* step_size, float* inv_sqrt_bc2);
+
+ private:
+  AdamHyper h_;
+  std::vector<float> step_size_, inv_sqrt_bc2_;
+};
+
+// Adam update with the bias corrections given.
+inline void AdamUpdateRow(const AdamHyper& h, float step_size, float inv_sqrt_bc2, int n,
+                          const float* grad, float* param, float* m, float* v);
+
+inline void AdamUpdateRow(const AdamHyper& h, float step_size, float inv_sqrt_bc2, int n,
+                          const float* grad, float* param, float* m, float* v) {
+  for (int i = 0; i < n; ++i) {
+    m[i] = h.beta1 * m[i] + (1.f - h.beta1) * grad[i];
+    v[i] = h.beta2 * v[i] + (1.f - h.beta2) * grad[i] * grad[i];
+    param[i] -= step_size * m[i] / (std::sqrt(v[i]) * inv_sqrt_bc2 + h.eps);
+  }
+}
 
 class Decoder {
  public:

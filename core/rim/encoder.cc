@@ -5,7 +5,8 @@
 
 namespace rim {
 
-void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features) {
+void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc,
+                 float* features) {
   const MapGeometry& geo = map.geometry();
   const int L = geo.levels(), D = geo.feature_dim();
   enc->points = n;
@@ -32,10 +33,11 @@ void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* en
       std::fill_n(out, D, 0.f);
       for (int c = 0; c < 8; ++c) {
         const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-        const int64_t slot = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) *
-                                 dims.z() + (cz ? s1[2] : s0[2]);
-        const float wc = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) *
-                         (cz ? f[2] : 1.f - f[2]);
+        const int64_t slot =
+            (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
+            (cz ? s1[2] : s0[2]);
+        const float wc =
+            (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
         slots[c] = slot;
         w[c] = wc;
         const float* feat = &lv.features[slot * D];
@@ -72,6 +74,7 @@ void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
   const int L = map.geometry().levels(), D = map.geometry().feature_dim();
   for (int l = 0; l < L; ++l) {
     Level& lv = levels_[l];
+    lv.grad.reserve(size_t(enc.points) * 8 * D);  // at most 8 new rows per point
     for (int p = 0; p < enc.points; ++p) {
       const float* g = grad_features + size_t(p) * L * D + size_t(l) * D;
       const int64_t* slots = &enc.slots[(size_t(p) * L + l) * 8];

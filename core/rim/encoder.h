@@ -32,8 +32,8 @@ class SparseGradient {
   // grad_features: points × L·D, as produced by the loss backward.
   void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features);
   struct Level {
-    std::vector<uint32_t> stamp;  // per slot
-    std::vector<int32_t> row;     // per slot, valid when stamp == iteration
+    std::vector<uint32_t> stamp;   // per slot
+    std::vector<int32_t> row;      // per slot, valid when stamp == iteration
     std::vector<int64_t> touched;  // slots with a gradient row
     std::vector<float> grad;       // touched.size() × D
   };

@@ -14,8 +14,8 @@ namespace rim {
 // Voxels that leave the box, handed to the global map; only voxels that hold data are included.
 struct SlabBatch {
   int level = 0;
-  std::vector<Int3> points;      // world lattice indices
-  std::vector<float> features;   // D per point
+  std::vector<Int3> points;       // world lattice indices
+  std::vector<float> features;    // D per point
   std::vector<uint8_t> observed;  // per point (level 0 only; empty otherwise)
 };
 
@@ -24,8 +24,8 @@ class LocalMap {
   enum Flags : uint8_t { kObserved = 1, kHasData = 2 };
 
   struct Level {
-    Int3 dims = Int3::Zero();  // lattice points per axis (storage size)
-    Int3 origin = Int3::Zero();  // world lattice index of the box's minimum corner
+    Int3 dims = Int3::Zero();     // lattice points per axis (storage size)
+    Int3 origin = Int3::Zero();   // world lattice index of the box's minimum corner
     std::vector<float> features;  // slot-major, D per slot
     std::vector<float> adam_m;
     std::vector<float> adam_v;
@@ -49,7 +49,8 @@ class LocalMap {
   Vec3d min_m() const { return coarse_origin_.cast<double>() * coarse_m(); }
   Vec3d max_m() const { return min_m() + geometry_.extent_m(); }
   bool Contains(const Vec3d& p_W) const {
-    return placed_ && (p_W.array() >= min_m().array()).all() && (p_W.array() < max_m().array()).all();
+    return placed_ && (p_W.array() >= min_m().array()).all() &&
+           (p_W.array() < max_m().array()).all();
   }
   // Lattice points of a level covered by the box.
   IntBox LatticeBox(int l) const {

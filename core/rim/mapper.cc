@@ -21,7 +21,9 @@ namespace {
 double Now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
-bool Finite(const Vec3f& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
+bool Finite(const Vec3f& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
 }  // namespace
 
 struct Mapper::OutsideRaysHolder {
@@ -52,13 +54,15 @@ absl::Status Mapper::ValidateScan(const PosedScan& scan) const {
   if (!R.allFinite() || !t.allFinite())
     return absl::InvalidArgumentError("scan.pose contains NaN or Inf");
   if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-4 || R.determinant() < 0)
-    return absl::InvalidArgumentError("scan.pose rotation is not orthonormal (is the quaternion unit?)");
+    return absl::InvalidArgumentError(
+        "scan.pose rotation is not orthonormal (is the quaternion unit?)");
   if (t.cwiseAbs().maxCoeff() > 1e6)
     return absl::InvalidArgumentError("scan.pose translation is beyond 1e6 m");
   if (scan.points_S.empty()) return absl::InvalidArgumentError("scan.points is empty");
   if (!scan.origins_S.empty() && scan.origins_S.size() != scan.points_S.size())
     return absl::InvalidArgumentError(absl::StrCat("scan.origins has ", scan.origins_S.size(),
-                                                   " entries for ", scan.points_S.size(), " points"));
+                                                   " entries for ", scan.points_S.size(),
+                                                   " points"));
   for (size_t i = 0; i < scan.points_S.size(); ++i) {
     if (!Finite(scan.points_S[i]))
       return absl::InvalidArgumentError(absl::StrCat("scan.points[", i, "] is not finite"));
@@ -155,8 +159,8 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     std::unique_lock<std::shared_mutex> lock(mu_);
     ++frames_;
     BumpVersions(train_decoder && n_iter > 0);
-    RIM_RETURN_IF_ERROR(store_->UpdateActivity(
-        geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
+    RIM_RETURN_IF_ERROR(
+        store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
   t.sample_s = it.sample_s;
   t.encode_s = it.encode_s;
@@ -191,7 +195,8 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
   saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
   const int F = geometry_->encoding_dim();
-  std::vector<float> features(n * F), jac(want_gradient ? n * F * 3 : 0), dsdf(want_gradient ? n * F : 0);
+  std::vector<float> features(n * F), jac(want_gradient ? n * F * 3 : 0),
+      dsdf(want_gradient ? n * F : 0);
   out->sdf.resize(n);
   out->observed.resize(n);
   out->gradient.assign(want_gradient ? 3 * n : 0, 0.f);
@@ -204,12 +209,14 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
                   int(std::floor(p.z() * inv_s)));
     out->observed[i] = reader.Observed(g0) ? 1 : 0;
   }
-  decoder_->Forward(features.data(), int(n), out->sdf.data(), want_gradient ? dsdf.data() : nullptr);
+  decoder_->Forward(features.data(), int(n), out->sdf.data(),
+                    want_gradient ? dsdf.data() : nullptr);
   if (want_gradient) {
     // Chain rule: d sdf / d p = (d sdf / d features) · (d features / d p).
     for (size_t i = 0; i < n; ++i)
       for (int f = 0; f < F; ++f)
-        for (int a = 0; a < 3; ++a) out->gradient[3 * i + a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
+        for (int a = 0; a < 3; ++a)
+          out->gradient[3 * i + a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
   }
   out->map_version = map_version_.load();
   return absl::OkStatus();

@@ -4,13 +4,12 @@
 // training iteration (§3.5).
 #pragma once
 
+#include <Eigen/Geometry>
 #include <atomic>
 #include <memory>
 #include <shared_mutex>
 #include <string>
 #include <vector>
-
-#include <Eigen/Geometry>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -37,17 +36,17 @@ struct PosedScan {
 
 // Per-frame stage times (§3.4 step 4), seconds; training stages are summed over iterations.
 struct StageTimings {
-  double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0,
-         backward_s = 0, step_s = 0, total_s = 0;
+  double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0,
+         step_s = 0, total_s = 0;
   int iterations = 0;
   float loss = 0;  // mean over the frame's iterations
 };
 
 struct QueryResult {
-  std::vector<float> sdf;          // metres; see `observed`
-  std::vector<float> gradient;     // 3 per point, when asked
-  std::vector<uint8_t> observed;   // 0: the finest voxel at the point was never observed, and its
-                                   // sdf is the network's extrapolation, not a measurement
+  std::vector<float> sdf;         // metres; see `observed`
+  std::vector<float> gradient;    // 3 per point, when asked
+  std::vector<uint8_t> observed;  // 0: the finest voxel at the point was never observed, and its
+                                  // sdf is the network's extrapolation, not a measurement
   uint64_t map_version = 0;
 };
 

@@ -122,7 +122,8 @@ absl::Status Mapper::LoadState(const std::string& path) {
   uint64_t frames, map_version;
   RIM_RETURN_IF_ERROR(r.U32(&version));
   if (version != kStateVersion)
-    return absl::DataLossError(absl::StrCat(path, ": state version ", version, ", expected ", kStateVersion));
+    return absl::DataLossError(
+        absl::StrCat(path, ": state version ", version, ", expected ", kStateVersion));
   RIM_RETURN_IF_ERROR(r.U64(&frames));
   RIM_RETURN_IF_ERROR(r.U64(&map_version));
   auto with_path = [&](absl::Status s) {
@@ -148,7 +149,8 @@ absl::Status Mapper::Save(const std::string& dir) const {
   std::shared_lock<std::shared_mutex> lock(mu_);
   int next = 0;
   std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir, ec)) next = std::max(next, CheckpointNumber(e.path().filename()) + 1);
+  for (const auto& e : fs::directory_iterator(dir, ec))
+    next = std::max(next, CheckpointNumber(e.path().filename()) + 1);
   const std::string name = absl::StrFormat("ckpt-%06d", next);
   const std::string ckpt = dir + "/" + name;
   RIM_RETURN_IF_ERROR(MakeDirs(ckpt));

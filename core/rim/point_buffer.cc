@@ -8,7 +8,8 @@ namespace rim {
 
 PointBuffer::PointBuffer(const BufferConfig& config, uint64_t seed) : config_(config), rng_(seed) {}
 
-void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W) {
+void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W,
+                           const std::vector<Vec3f>& origins_W) {
   const size_t n = points_W.size();
   const size_t keep = std::min<size_t>(n, size_t(config_.max_points_per_frame));
   std::vector<uint32_t> idx(n);

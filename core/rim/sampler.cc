@@ -22,8 +22,8 @@ float BoxExitDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_mi
 Sampler::Sampler(const SamplerConfig& config, float sigma_m, uint64_t seed)
     : config_(config), sigma_m_(sigma_m), rng_(seed) {}
 
-void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside,
-                     const Vec3d& box_min_m, const Vec3d& box_max_m, SampleBatch* out) {
+void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, const Vec3d& box_min_m,
+                     const Vec3d& box_max_m, SampleBatch* out) {
   out->Clear();
   const Vec3f lo = box_min_m.cast<float>() + Vec3f::Constant(kBoxMarginM);
   const Vec3f hi = box_max_m.cast<float>() - Vec3f::Constant(kBoxMarginM);

@@ -8,10 +8,10 @@
 #define RIM_CONCAT(a, b) RIM_CONCAT_INNER(a, b)
 
 // Evaluates `expr` (an absl::Status) and returns it from the caller if it is not OK.
-#define RIM_RETURN_IF_ERROR(expr)                \
-  do {                                           \
-    ::absl::Status rim_status_ = (expr);         \
-    if (!rim_status_.ok()) return rim_status_;   \
+#define RIM_RETURN_IF_ERROR(expr)              \
+  do {                                         \
+    ::absl::Status rim_status_ = (expr);       \
+    if (!rim_status_.ok()) return rim_status_; \
   } while (0)
 
 // `RIM_ASSIGN_OR_RETURN(auto x, MakeX());` unwraps an absl::StatusOr or returns its status.

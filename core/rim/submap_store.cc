@@ -1,13 +1,14 @@
 #include "rim/submap_store.h"
 
-#include <algorithm>
-#include <cstring>
 #include <dirent.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cstring>
+
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
-#include "absl/strings/numbers.h"
 #include "rim/binary_io.h"
 #include "rim/status_macros.h"
 
@@ -77,6 +78,10 @@ void SubmapStore::Write(const SlabBatch& batch) {
       if (!cached_submap) {
         cached_submap = &submaps_[key];
         cached_submap->last_access = ++access_clock_;
+      } else if (cached_submap->state == SubmapState::kOnDisk) {
+        // Its spill file could not be read back (last_error_ says why): that data is lost, and
+        // the new voxels must stay visible rather than go into a sub-map nobody can read.
+        cached_submap->state = SubmapState::kFrozen;
       }
       cached_key = key;
     }
@@ -164,7 +169,12 @@ absl::Status SubmapStore::UpdateActivity(const Int3& robot_submap) {
   for (auto& [key, s] : submaps_) {
     const float dist = (key - robot_submap).cast<float>().norm();
     if (dist <= config_.active_radius_submaps) {
-      if (s.state == SubmapState::kOnDisk) FindLocked(key);  // revisit re-activates
+      if (s.state == SubmapState::kOnDisk) {
+        FindLocked(key);  // revisit re-activates
+        // A failed reload (last_error_ says why) leaves the data on disk: retry on a later update
+        // rather than declaring an empty sub-map active and losing what the spill file holds.
+        if (s.state == SubmapState::kOnDisk) continue;
+      }
       s.state = SubmapState::kActive;
     } else if (s.state == SubmapState::kActive) {
       s.state = SubmapState::kFrozen;
@@ -212,7 +222,9 @@ absl::Status SubmapStore::last_error() const {
 
 void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string* out) const {
   ByteWriter w;
-  w.I32(key.x()); w.I32(key.y()); w.I32(key.z());
+  w.I32(key.x());
+  w.I32(key.y());
+  w.I32(key.z());
   w.U64(s.version);
   w.I32(geometry_.levels());
   w.I32(geometry_.feature_dim());
@@ -227,7 +239,9 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
     });
     w.U64(blocks.size());
     for (const auto* kv : blocks) {
-      w.I32(kv->first.x()); w.I32(kv->first.y()); w.I32(kv->first.z());
+      w.I32(kv->first.x());
+      w.I32(kv->first.y());
+      w.I32(kv->first.z());
       w.FloatArray(kv->second.features.data(), kv->second.features.size());
       w.PodVector(kv->second.observed);
     }
@@ -239,6 +253,11 @@ absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const 
   std::lock_guard<std::mutex> lock(mu_);
   const Submap* s = FindLocked(key);
   if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
+  // Its data is on disk and could not be reloaded: serialising it as empty would lose it.
+  if (s->state == SubmapState::kOnDisk)
+    return absl::DataLossError(absl::StrCat("sub-map ", SubmapKeyName(key),
+                                            " could not be reloaded from ", SpillPath(key), ": ",
+                                            last_error_.message()));
   std::string out;
   SerializeLocked(key, *s, &out);
   return out;
@@ -267,7 +286,8 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
   for (int l = 0; l < levels; ++l) {
     uint64_t n;
     RIM_RETURN_IF_ERROR(r.U64(&n));
-    if (n > r.remaining() / 12) return absl::DataLossError(absl::StrCat(context, ": bad block count"));
+    if (n > r.remaining() / 12)
+      return absl::DataLossError(absl::StrCat(context, ": bad block count"));
     for (uint64_t i = 0; i < n; ++i) {
       Int3 bk;
       RIM_RETURN_IF_ERROR(r.I32(&bk.x()));
@@ -296,7 +316,8 @@ absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std:
   auto it = submaps_.find(key);
   if (it != submaps_.end()) {
     host_bytes_ -= it->second.bytes;
-    s.state = it->second.state == SubmapState::kActive ? SubmapState::kActive : SubmapState::kFrozen;
+    s.state =
+        it->second.state == SubmapState::kActive ? SubmapState::kActive : SubmapState::kFrozen;
   }
   s.last_access = ++access_clock_;
   host_bytes_ += s.bytes;
@@ -308,8 +329,8 @@ absl::Status SubmapStore::SaveTo(const std::string& dir) const {
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
   for (const Int3& key : Keys()) {
     RIM_ASSIGN_OR_RETURN(std::string bytes, SerializeSubmap(key));
-    RIM_RETURN_IF_ERROR(
-        WriteFileAtomic(absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm"), kSubmapKind, bytes));
+    RIM_RETURN_IF_ERROR(WriteFileAtomic(absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm"),
+                                        kSubmapKind, bytes));
   }
   // Files of sub-maps that no longer exist would come back on load: remove them.
   std::vector<Int3> keys = Keys();

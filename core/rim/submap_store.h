@@ -64,7 +64,7 @@ class SubmapStore {
 
  private:
   struct Block {
-    std::vector<float> features;   // block³ · D
+    std::vector<float> features;    // block³ · D
     std::vector<uint8_t> observed;  // block³, level 0 only
   };
   struct Submap {

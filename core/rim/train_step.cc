@@ -1,8 +1,8 @@
 #include "rim/train_step.h"
 
-#include <chrono>
-
 #include <torch/torch.h>
+
+#include <chrono>
 
 #include "absl/strings/str_cat.h"
 
@@ -29,15 +29,15 @@ absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const Train
     const auto& layers = decoder.layers();
     for (size_t k = 0; k < layers.size(); ++k) {
       const auto& L = layers[k];
-      torch::Tensor W = flat.narrow(0, int64_t(L.weight_offset), int64_t(L.in) * L.out).view({L.out, L.in});
+      torch::Tensor W =
+          flat.narrow(0, int64_t(L.weight_offset), int64_t(L.in) * L.out).view({L.out, L.in});
       torch::Tensor b = flat.narrow(0, int64_t(L.bias_offset), L.out);
       h = torch::addmm(b, h, W.t());
       if (k + 1 < layers.size()) h = torch::relu(h);
     }
     torch::Tensor sdf = h.squeeze(1);
     torch::Tensor pred = sdf.narrow(0, 0, in.labelled);
-    torch::Tensor labels =
-        torch::from_blob(const_cast<float*>(in.labels), {in.labelled}, opts);
+    torch::Tensor labels = torch::from_blob(const_cast<float*>(in.labels), {in.labelled}, opts);
     const float inv_sigma = 1.f / in.sigma_m;
     torch::Tensor target = torch::sigmoid(-labels * inv_sigma);
     torch::Tensor loss = torch::binary_cross_entropy_with_logits(-pred * inv_sigma, target);

@@ -18,7 +18,9 @@ Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
     : config_(config),
       map_(map),
       decoder_(decoder),
-      sampler_(config.sampler, config.train.sigma_m, config.sampler.seed) {}
+      sampler_(config.sampler, config.train.sigma_m, config.sampler.seed),
+      bias_(AdamHyper{config.train.learning_rate, config.train.adam_beta1, config.train.adam_beta2,
+                      config.train.adam_eps}) {}
 
 void Trainer::AddEikonalProbes() {
   const float h = float(0.5 * map_->geometry().leaf_m());
@@ -99,9 +101,10 @@ void Trainer::ApplyFeatureUpdates() {
     // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
     for (size_t r = 0; r < g.touched.size(); ++r) {
       const int64_t slot = g.touched[r];
-      const int step = ++lv.adam_steps[slot];
-      AdamUpdate(hyper, step, D, &g.grad[r * D], &lv.features[slot * D], &lv.adam_m[slot * D],
-                 &lv.adam_v[slot * D]);
+      float step_size, inv_sqrt_bc2;
+      bias_.Get(++lv.adam_steps[slot], &step_size, &inv_sqrt_bc2);
+      AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[r * D], &lv.features[slot * D],
+                    &lv.adam_m[slot * D], &lv.adam_v[slot * D]);
       lv.flags[slot] |= LocalMap::kHasData;
     }
   }

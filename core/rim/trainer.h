@@ -42,6 +42,7 @@ class Trainer {
   LocalEncoding encoding_;
   std::vector<float> features_;
   SparseGradient grad_;
+  AdamBiasTable bias_;
   bool grad_ready_ = false;
 };
 

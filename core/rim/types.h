@@ -1,11 +1,10 @@
 // Small value types shared by the whole core: 3D vectors, integer voxel indices and their hash.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstddef>
 #include <cstdint>
 #include <functional>
-
-#include <Eigen/Core>
 
 namespace rim {
 

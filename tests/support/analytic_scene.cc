@@ -517,7 +517,8 @@ std::vector<Eigen::Isometry3f> StraightTrajectory(float x0, float x1, int n,
 
 MeshErrors EvaluateMesh(const Mesh& mesh, const AnalyticScene& scene,
                         const Eigen::Vector3f& region_min, const Eigen::Vector3f& region_max,
-                        int samples, uint32_t seed) {
+                        int samples, uint32_t seed,
+                        const std::function<bool(const Eigen::Vector3f&)>& truth_filter) {
   constexpr double kInfD = std::numeric_limits<double>::infinity();
   MeshErrors errors{kInfD, kInfD, kInfD, 0};
   auto vertex = [&mesh](uint32_t i) {
@@ -567,8 +568,14 @@ MeshErrors EvaluateMesh(const Mesh& mesh, const AnalyticScene& scene,
   errors.accuracy_m = abs_sdf_sum / double(mesh_points.size());
 
   // A different stream than the mesh samples so the two sides are independent.
-  const std::vector<AnalyticScene::SurfacePoint> truth =
+  std::vector<AnalyticScene::SurfacePoint> truth =
       scene.SampleSurface(region_min, region_max, samples, seed ^ 0x9E3779B9u);
+  if (truth_filter) {
+    truth.erase(
+        std::remove_if(truth.begin(), truth.end(),
+                       [&](const AnalyticScene::SurfacePoint& sp) { return !truth_filter(sp.p); }),
+        truth.end());
+  }
   const KdTree tree(std::move(mesh_points));
   double dist_sum = 0.0;
   for (const auto& sp : truth) dist_sum += tree.NearestDistance(sp.p);

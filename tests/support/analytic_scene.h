@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "rim/mesh.h"
@@ -104,8 +105,11 @@ struct MeshErrors {
 
 // Scores `mesh` against the scene inside the box [region_min, region_max], with `samples` points
 // on each side. An empty mesh (or one entirely outside the region) scores +infinity.
+// `truth_filter`, when given, keeps only the ground-truth surface points it accepts (e.g. those a
+// sensor could have seen), so completeness is not charged for surfaces nobody observed.
 MeshErrors EvaluateMesh(const Mesh& mesh, const AnalyticScene& scene,
                         const Eigen::Vector3f& region_min, const Eigen::Vector3f& region_max,
-                        int samples, uint32_t seed);
+                        int samples, uint32_t seed,
+                        const std::function<bool(const Eigen::Vector3f&)>& truth_filter = {});
 
 }  // namespace rim::testing_support

@@ -1,0 +1,220 @@
+// The mapper end to end on an analytic scene with exact ground truth: a simulated LiDAR drives
+// along a corridor longer than the local map, so the map slides, slabs go to sub-maps, and
+// queries and meshes read both the live grids and the sub-map store.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <set>
+
+#include "rim/mapper.h"
+#include "rim/mesh_io.h"
+#include "rim/submap_store.h"
+#include "support/analytic_scene.h"
+
+namespace rim {
+namespace {
+
+using testing_support::AnalyticScene;
+using testing_support::LidarModel;
+
+double Median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+class MapperSceneTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    scene_ = new AnalyticScene(AnalyticScene::Default());
+    auto config = MakePreset("maicity");
+    ASSERT_TRUE(config.ok());
+    // 20 iterations instead of 30 keeps the test within a couple of minutes on 2 cores.
+    ASSERT_TRUE(ApplyOverrides({"train.iterations=20"}, &*config).ok());
+    auto mapper = Mapper::Create(*config);
+    ASSERT_TRUE(mapper.ok()) << mapper.status();
+    mapper_ = mapper->release();
+    LidarModel lidar;
+    const auto poses = testing_support::StraightTrajectory(0.f, 30.f, 31, 1.6f);
+    double total_s = 0;
+    StageTimings sum;
+    for (size_t i = 0; i < poses.size(); ++i) {
+      PosedScan scan;
+      scan.T_world_sensor = poses[i].cast<double>();
+      for (const auto& p : testing_support::SimulateScan(*scene_, lidar, poses[i], 100 + i))
+        scan.points_S.push_back(p);
+      StageTimings t;
+      absl::Status s = mapper_->IntegrateScan(scan, -1, &t);
+      ASSERT_TRUE(s.ok()) << s;
+      total_s += t.total_s;
+      sum.slide_s += t.slide_s;
+      sum.preprocess_s += t.preprocess_s;
+      sum.sample_s += t.sample_s;
+      sum.encode_s += t.encode_s;
+      sum.forward_s += t.forward_s;
+      sum.backward_s += t.backward_s;
+      sum.step_s += t.step_s;
+    }
+    const double k = 1e3 / poses.size();
+    std::printf(
+        "integrated %zu frames, %.0f ms/frame (slide %.1f, preprocess %.1f, sample %.1f, encode "
+        "%.1f, forward %.1f, backward %.1f, step %.1f)\n",
+        poses.size(), k * total_s, k * sum.slide_s, k * sum.preprocess_s, k * sum.sample_s,
+        k * sum.encode_s, k * sum.forward_s, k * sum.backward_s, k * sum.step_s);
+  }
+  static void TearDownTestSuite() {
+    delete mapper_;
+    delete scene_;
+  }
+
+  // Surface points of the stretch the robot drove past, where the map was trained.
+  std::vector<AnalyticScene::SurfacePoint> Surface(int count) const {
+    return scene_->SampleSurface(Eigen::Vector3f(2, -8, -0.5f), Eigen::Vector3f(28, 8, 4.f), count,
+                                 5);
+  }
+
+  static AnalyticScene* scene_;
+  static Mapper* mapper_;
+};
+AnalyticScene* MapperSceneTest::scene_ = nullptr;
+Mapper* MapperSceneTest::mapper_ = nullptr;
+
+TEST_F(MapperSceneTest, MapSlidAndFilledSubmaps) {
+  const MapperStats stats = mapper_->Stats();
+  EXPECT_EQ(stats.frames, 31);
+  // The robot moved 30 m with a 20 m box: sub-maps behind it hold saved slabs.
+  EXPECT_GT(stats.submap_bytes, 0);
+  EXPECT_GE(mapper_->ListTiles(0).size(), 2u);
+}
+
+TEST_F(MapperSceneTest, SdfAtSurfaceIsNearZero) {
+  const auto surface = Surface(4000);
+  std::vector<float> xyz;
+  for (const auto& s : surface) xyz.insert(xyz.end(), {s.p.x(), s.p.y(), s.p.z()});
+  QueryResult q;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), surface.size(), true, &q).ok());
+  std::vector<double> err;
+  int flat = 0, flat_ok = 0;
+  for (size_t i = 0; i < surface.size(); ++i) {
+    if (!q.observed[i]) continue;
+    err.push_back(std::abs(q.sdf[i]));
+    if (surface[i].on_flat_face) {
+      Eigen::Vector3f g(q.gradient[3 * i], q.gradient[3 * i + 1], q.gradient[3 * i + 2]);
+      const float angle = std::acos(std::clamp(g.normalized().dot(surface[i].n), -1.f, 1.f));
+      ++flat;
+      flat_ok += angle < 10.f * M_PI / 180.f;
+    }
+  }
+  const double observed_fraction = double(err.size()) / surface.size();
+  std::printf("observed %.1f%%, median |sdf| %.2f cm, normals within 10 deg %.1f%% of %d\n",
+              100 * observed_fraction, 100 * Median(err), 100.0 * flat_ok / flat, flat);
+  EXPECT_GT(observed_fraction, 0.6);
+  EXPECT_LT(Median(err), 0.02);
+  // "Within 10 degrees on flat faces": required of the large majority of samples; edges and
+  // rarely seen faces are where the remainder sits.
+  EXPECT_GT(double(flat_ok) / flat, 0.8);
+}
+
+TEST_F(MapperSceneTest, SignIsRightInFreeSpace) {
+  // Points in the free corridor above the ground, 0.3 m or more from any surface.
+  std::vector<float> xyz;
+  for (float x = 3; x < 28; x += 0.5f)
+    for (float y = -1.5f; y <= 1.5f; y += 0.5f)
+      for (float z = 0.3f; z < 2.5f; z += 0.4f)
+        if (scene_->Sdf(Eigen::Vector3f(x, y, z)) > 0.3f) xyz.insert(xyz.end(), {x, y, z});
+  QueryResult q;
+  const size_t n = xyz.size() / 3;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), n, false, &q).ok());
+  size_t positive = 0;
+  for (float v : q.sdf) positive += v > 0.f;
+  std::printf("free space: %zu of %zu positive\n", positive, n);
+  EXPECT_GT(double(positive) / n, 0.98);
+}
+
+TEST_F(MapperSceneTest, MeshIsAccurateAndTilesAreSeamless) {
+  Mesh merged;
+  std::map<std::array<int, 3>, Mesh> tiles;
+  for (const TileInfo& t : mapper_->ListTiles(0)) {
+    auto mesh = mapper_->ExtractMeshTile(t.key);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    tiles[{t.key.x(), t.key.y(), t.key.z()}] = *mesh;
+    AppendMesh(*mesh, &merged);
+  }
+  ASSERT_FALSE(merged.empty());
+  // Completeness counts only surfaces the LiDAR saw from inside the local box of some pose:
+  // roofs above the beams and back faces were never observed, so no mapper could have them.
+  const auto poses = testing_support::StraightTrajectory(0.f, 30.f, 31, 1.6f);
+  auto visible = [&](const Eigen::Vector3f& p) {
+    for (const auto& T : poses) {
+      const Eigen::Vector3f o = T.translation(), d = p - o;
+      const float dist = d.norm();
+      const float elev = std::asin(d.z() / dist) * 180.f / float(M_PI);
+      if (dist > 29.f || std::abs(d.x()) > 9.9f || elev < -25.f || elev > 15.f) continue;
+      if (scene_->Raycast(o, d / dist, 30.f) >= dist - 0.02f) return true;
+    }
+    return false;
+  };
+  const auto errors =
+      testing_support::EvaluateMesh(merged, *scene_, Eigen::Vector3f(2, -8, -0.5f),
+                                    Eigen::Vector3f(28, 8, 4.f), 200000, 9, visible);
+  std::printf("mesh: %zu faces, accuracy %.2f cm, completeness %.2f cm, chamfer-L1 %.2f cm\n",
+              merged.faces.size(), 100 * errors.accuracy_m, 100 * errors.completeness_m,
+              100 * errors.chamfer_l1_m);
+  EXPECT_LT(errors.chamfer_l1_m, 0.03);
+
+  // Seams: tiles are meshed independently, so a seam would show as open mesh boundary along the
+  // tile border plane x = 20 m, on every surface crossing it. After welding bit-identical
+  // vertices, the border plane must have no more boundary edges than ordinary grid planes near it
+  // (whose boundary edges come only from where observation ends).
+  const Mesh welded = WeldIdenticalVertices(merged);
+  std::map<std::pair<uint32_t, uint32_t>, int> edge_use;
+  for (const auto& f : welded.faces)
+    for (int e = 0; e < 3; ++e) {
+      uint32_t a = f[e], b = f[(e + 1) % 3];
+      edge_use[{std::min(a, b), std::max(a, b)}]++;
+    }
+  const double step = 0.05;
+  std::map<long, int> boundary_per_plane;  // keyed by x / step
+  for (const auto& [e, uses] : edge_use) {
+    if (uses != 1) continue;
+    const float xa = welded.vertices[e.first][0], xb = welded.vertices[e.second][0];
+    const double k = std::round(xa / step);
+    if (xa == xb && std::abs(xa - k * step) < 1e-4) boundary_per_plane[long(k)]++;
+  }
+  std::vector<double> others;
+  // Observation ends on finest-voxel faces, so compare with those planes (every 0.1 m).
+  for (long k = long(std::round(15 / step)); k <= long(std::round(25 / step)); k += 2)
+    if (k != long(std::round(20 / step))) others.push_back(boundary_per_plane[k]);
+  const int border = boundary_per_plane[long(std::round(20 / step))];
+  size_t crossing = 0;
+  for (const auto& v : welded.vertices) crossing += v[0] == 20.f;
+  std::printf(
+      "x=20 m tile border: %d open edges, %zu vertices; median voxel-face plane: %.0f open edges\n",
+      border, crossing, Median(others));
+  EXPECT_GT(crossing, 100u);
+  EXPECT_LE(border, 2 * Median(others) + 10);
+}
+
+TEST_F(MapperSceneTest, SaveLoadGivesIdenticalAnswers) {
+  const std::string dir = ::testing::TempDir() + "/rim_mapper_scene_save";
+  ASSERT_TRUE(mapper_->Save(dir).ok());
+  auto loaded = Mapper::Load(dir);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  std::vector<float> xyz;
+  for (const auto& s : Surface(500)) xyz.insert(xyz.end(), {s.p.x(), s.p.y(), s.p.z()});
+  for (float x = -5; x < 40; x += 1.f) xyz.insert(xyz.end(), {x, 0.5f, 1.f});  // beyond the map too
+  const size_t n = xyz.size() / 3;
+  QueryResult a, b;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), n, true, &a).ok());
+  ASSERT_TRUE((*loaded)->QuerySdf(xyz.data(), n, true, &b).ok());
+  EXPECT_EQ(a.sdf, b.sdf);
+  EXPECT_EQ(a.gradient, b.gradient);
+  EXPECT_EQ(a.observed, b.observed);
+  EXPECT_EQ(a.map_version, b.map_version);
+  EXPECT_EQ((*loaded)->frames(), mapper_->frames());
+}
+
+}  // namespace
+}  // namespace rim

@@ -1,0 +1,223 @@
+// The historical point buffer (DESIGN.md §3.4 step 2): per-frame and total caps with random
+// dropping, removal of points that left the box, filtering, and persistence including the random
+// generator state.
+#include "rim/point_buffer.h"
+
+#include <cstdint>
+#include <map>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "gtest/gtest.h"
+#include "rim/binary_io.h"
+#include "rim/config.h"
+
+namespace rim {
+namespace {
+
+// Point i of frame f is (f, i, 0.5); its origin is (f, i, -7), so that pairs can be checked.
+std::vector<Vec3f> FramePoints(int f, int n) {
+  std::vector<Vec3f> p;
+  for (int i = 0; i < n; ++i) p.emplace_back(float(f), float(i), 0.5f);
+  return p;
+}
+std::vector<Vec3f> FrameOrigins(int f, int n) {
+  std::vector<Vec3f> o;
+  for (int i = 0; i < n; ++i) o.emplace_back(float(f), float(i), -7.f);
+  return o;
+}
+void AddTestFrame(PointBuffer* b, int f, int n) {
+  b->AddFrame(FramePoints(f, n), FrameOrigins(f, n));
+}
+
+// Every point is one that was added, with its own origin, and none is duplicated.
+void ExpectConsistent(const PointBuffer& b) {
+  ASSERT_EQ(b.points().size(), b.origins().size());
+  std::set<std::pair<float, float>> seen;
+  for (size_t i = 0; i < b.size(); ++i) {
+    const Vec3f& p = b.points()[i];
+    const Vec3f& o = b.origins()[i];
+    EXPECT_EQ(p.z(), 0.5f);
+    EXPECT_EQ(o, Vec3f(p.x(), p.y(), -7.f)) << "point " << i << " lost its origin";
+    EXPECT_TRUE(seen.insert({p.x(), p.y()}).second) << "duplicate point " << p.transpose();
+  }
+}
+
+BufferConfig Caps(int max_points, int per_frame) {
+  BufferConfig c;
+  c.max_points = max_points;
+  c.max_points_per_frame = per_frame;
+  return c;
+}
+
+TEST(PointBufferTest, PerFrameCapKeepsARandomSubset) {
+  PointBuffer b(Caps(1000000, 10), /*seed=*/1);
+  AddTestFrame(&b, 0, 100);
+  EXPECT_EQ(b.size(), 10u);
+  ExpectConsistent(b);
+  // Not simply the first ten.
+  int beyond_first_ten = 0;
+  for (const Vec3f& p : b.points()) beyond_first_ten += p.y() >= 10.f;
+  EXPECT_GT(beyond_first_ten, 0);
+
+  // Below the cap, the whole frame is kept.
+  AddTestFrame(&b, 1, 7);
+  EXPECT_EQ(b.size(), 17u);
+  ExpectConsistent(b);
+
+  // Uniform: over many frames each index is kept about equally often.
+  PointBuffer u(Caps(1000000, 5), /*seed=*/2);
+  for (int f = 0; f < 4000; ++f) AddTestFrame(&u, f, 20);
+  ASSERT_EQ(u.size(), 20000u);
+  std::vector<int> count(20, 0);
+  for (const Vec3f& p : u.points()) ++count[int(p.y())];
+  for (int i = 0; i < 20; ++i) EXPECT_NEAR(count[i], 1000, 150) << "index " << i;
+}
+
+TEST(PointBufferTest, TotalCapDropsRandomPoints) {
+  PointBuffer b(Caps(100, 10), /*seed=*/3);
+  for (int f = 0; f < 100; ++f) {
+    AddTestFrame(&b, f, 10);
+    EXPECT_EQ(b.size(), size_t(std::min(100, 10 * (f + 1))));
+  }
+  ExpectConsistent(b);
+  // Random dropping, not first-in-first-out: some points older than the last ten frames survive.
+  int old = 0;
+  for (const Vec3f& p : b.points()) old += p.x() < 90.f;
+  EXPECT_GT(old, 0);
+
+  // A single frame larger than the total cap.
+  PointBuffer c(Caps(5, 100), /*seed=*/4);
+  AddTestFrame(&c, 0, 50);
+  EXPECT_EQ(c.size(), 5u);
+  ExpectConsistent(c);
+}
+
+TEST(PointBufferTest, RemoveOutsideIsHalfOpen) {
+  PointBuffer b(Caps(1000, 1000), /*seed=*/5);
+  // Frame f: points (f, i, 0.5) for i in [0, 10).
+  for (int f = 0; f < 10; ++f) AddTestFrame(&b, f, 10);
+  ASSERT_EQ(b.size(), 100u);
+  b.RemoveOutside(Vec3d(2, 3, 0), Vec3d(5, 8, 1));
+  // Kept: x in {2,3,4} (5 is on the max face: out), y in {3..7}.
+  EXPECT_EQ(b.size(), 15u);
+  ExpectConsistent(b);
+  for (const Vec3f& p : b.points()) {
+    EXPECT_GE(p.x(), 2.f);
+    EXPECT_LT(p.x(), 5.f);
+    EXPECT_GE(p.y(), 3.f);
+    EXPECT_LT(p.y(), 8.f);
+  }
+  // z outside: everything goes.
+  b.RemoveOutside(Vec3d(-10, -10, 1), Vec3d(10, 10, 2));
+  EXPECT_EQ(b.size(), 0u);
+  EXPECT_TRUE(b.origins().empty());
+}
+
+TEST(PointBufferTest, FilterKeepsOrderAndPairs) {
+  PointBuffer b(Caps(1000, 1000), /*seed=*/6);
+  AddTestFrame(&b, 0, 10);
+  const std::vector<Vec3f> before = b.points();
+  std::vector<bool> keep(10);
+  for (int i = 0; i < 10; ++i) keep[i] = (i % 3) != 1;
+  b.Filter(keep);
+  std::vector<Vec3f> expected;
+  for (int i = 0; i < 10; ++i)
+    if (keep[i]) expected.push_back(before[i]);
+  EXPECT_EQ(b.points(), expected);
+  ExpectConsistent(b);
+  b.Filter(std::vector<bool>(b.size(), true));
+  EXPECT_EQ(b.points(), expected);
+  b.Filter(std::vector<bool>(b.size(), false));
+  EXPECT_EQ(b.size(), 0u);
+}
+
+TEST(PointBufferTest, SerializeRoundTripIncludingRandomState) {
+  PointBuffer a(Caps(50, 8), /*seed=*/77);
+  for (int f = 0; f < 12; ++f) AddTestFrame(&a, f, 20);
+  ByteWriter w;
+  a.Serialize(&w);
+  const std::string bytes = w.Release();
+
+  PointBuffer b(Caps(50, 8), /*seed=*/12345);  // a different seed: the state must come from bytes
+  ByteReader r(bytes, "buffer");
+  absl::Status s = b.Deserialize(&r);
+  ASSERT_TRUE(s.ok()) << s;
+  EXPECT_TRUE(r.ExpectEnd().ok());
+  EXPECT_EQ(a.points(), b.points());
+  EXPECT_EQ(a.origins(), b.origins());
+
+  // The same next frames give the same buffers: the random generator state travelled too.
+  for (int f = 12; f < 20; ++f) {
+    AddTestFrame(&a, f, 20);
+    AddTestFrame(&b, f, 20);
+    ASSERT_EQ(a.points(), b.points()) << "frame " << f;
+    ASSERT_EQ(a.origins(), b.origins()) << "frame " << f;
+  }
+  ByteWriter w2, w3;
+  a.Serialize(&w2);
+  b.Serialize(&w3);
+  EXPECT_EQ(w2.data(), w3.data());
+
+  // An empty buffer round-trips as well.
+  PointBuffer e(Caps(10, 10), 1), e2(Caps(10, 10), 2);
+  ByteWriter we;
+  e.Serialize(&we);
+  const std::string ebytes = we.Release();
+  ByteReader re(ebytes, "empty");
+  ASSERT_TRUE(e2.Deserialize(&re).ok());
+  EXPECT_EQ(e2.size(), 0u);
+}
+
+TEST(PointBufferTest, DeserializeRejectsCorruptBytesAndKeepsState) {
+  PointBuffer a(Caps(50, 8), /*seed=*/77);
+  for (int f = 0; f < 5; ++f) AddTestFrame(&a, f, 20);
+  ByteWriter w;
+  a.Serialize(&w);
+  const std::string bytes = w.Release();
+
+  PointBuffer b(Caps(50, 8), /*seed=*/1);
+  AddTestFrame(&b, 100, 3);
+  const std::vector<Vec3f> b_points = b.points();
+  for (size_t n = 0; n < bytes.size(); n += (n < 64 ? 1 : 37)) {
+    ByteReader r(std::string_view(bytes).substr(0, n), "truncated");
+    EXPECT_FALSE(b.Deserialize(&r).ok()) << "length " << n;
+    EXPECT_EQ(b.points(), b_points) << "a failed load changed the buffer (length " << n << ")";
+  }
+  // A garbled generator state is an error, not a silently different random stream.
+  ByteWriter bad;
+  bad.String("not a generator state");
+  bad.FloatArray(nullptr, 0);
+  bad.FloatArray(nullptr, 0);
+  const std::string bad_bytes = bad.Release();
+  ByteReader r(bad_bytes, "bad rng");
+  EXPECT_FALSE(b.Deserialize(&r).ok());
+  EXPECT_EQ(b.points(), b_points);
+  // Point and origin arrays of different lengths.
+  ByteWriter mismatch;
+  std::ostringstream rng_state;
+  rng_state << std::mt19937_64(5);
+  mismatch.String(rng_state.str());
+  const float three[3] = {1, 2, 3};
+  mismatch.FloatArray(three, 3);
+  mismatch.FloatArray(nullptr, 0);
+  const std::string mm = mismatch.Release();
+  ByteReader r2(mm, "mismatch");
+  EXPECT_FALSE(b.Deserialize(&r2).ok());
+  EXPECT_EQ(b.points(), b_points);
+  // Control: the same generator state with matching arrays loads.
+  ByteWriter good;
+  good.String(rng_state.str());
+  good.FloatArray(three, 3);
+  good.FloatArray(three, 3);
+  const std::string gb = good.Release();
+  ByteReader r3(gb, "good");
+  ASSERT_TRUE(b.Deserialize(&r3).ok());
+  EXPECT_EQ(b.points(), std::vector<Vec3f>{Vec3f(1, 2, 3)});
+}
+
+}  // namespace
+}  // namespace rim
