@@ -9,6 +9,7 @@
 #include "rim/encoder.h"
 #include "rim/local_map.h"
 #include "rim/mesher.h"
+#include "rim/outlier_filter.h"
 #include "rim/point_buffer.h"
 #include "rim/sampler.h"
 #include "rim/slab_saver.h"
@@ -111,22 +112,8 @@ void Mapper::Preprocess(const PosedScan& scan) {
   // Outlier removal needs a decoder that already means something: not before it is frozen.
   if (config_.buffer.outlier_removal && frames_ >= config_.decoder.freeze_after_frames &&
       frames_ % config_.buffer.outlier_period_frames == 0) {
-    RemoveOutliers();
+    RemoveOutliers(*local_map_, *decoder_, config_.buffer.outlier_threshold_m, buffer_.get());
   }
-}
-
-void Mapper::RemoveOutliers() {
-  const size_t n = buffer_->size();
-  if (n == 0) return;
-  std::vector<float> xyz(n * 3), features(n * geometry_->encoding_dim()), sdf(n);
-  for (size_t i = 0; i < n; ++i)
-    for (int a = 0; a < 3; ++a) xyz[3 * i + a] = buffer_->points()[i][a];
-  LocalEncoding enc;
-  EncodeLocal(*local_map_, xyz.data(), int(n), &enc, features.data());
-  decoder_->Forward(features.data(), int(n), sdf.data());
-  std::vector<bool> keep(n);
-  for (size_t i = 0; i < n; ++i) keep[i] = std::abs(sdf[i]) <= config_.buffer.outlier_threshold_m;
-  buffer_->Filter(keep);
 }
 
 absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageTimings* timing) {

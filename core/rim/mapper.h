@@ -15,6 +15,7 @@
 #include "absl/status/statusor.h"
 #include "rim/config.h"
 #include "rim/mesh.h"
+#include "rim/scan.h"
 #include "rim/types.h"
 
 namespace rim {
@@ -26,13 +27,6 @@ class SlabSaver;
 class SubmapStore;
 class Trainer;
 class MapGeometry;
-
-struct PosedScan {
-  Eigen::Isometry3d T_world_sensor = Eigen::Isometry3d::Identity();
-  std::vector<Vec3f> points_S;   // ray endpoints, sensor frame
-  std::vector<Vec3f> origins_S;  // per-point ray origins (sensor frame); empty: the sensor origin
-  double timestamp_s = 0;
-};
 
 // Per-frame stage times (§3.4 step 4), seconds; training stages are summed over iterations.
 struct StageTimings {
@@ -104,7 +98,6 @@ class Mapper {
   absl::Status ValidateScan(const PosedScan& scan) const;
   void SlideTo(const Vec3d& position_W);
   void Preprocess(const PosedScan& scan);
-  void RemoveOutliers();
   void BumpVersions(bool decoder_changed);
   absl::Status SaveState(const std::string& path) const;
   absl::Status LoadState(const std::string& path);

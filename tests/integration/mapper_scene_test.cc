@@ -7,10 +7,13 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <random>
 #include <set>
 
 #include "rim/mapper.h"
 #include "rim/mesh_io.h"
+#include "rim/outlier_filter.h"
+#include "rim/point_buffer.h"
 #include "rim/submap_store.h"
 #include "support/analytic_scene.h"
 
@@ -195,6 +198,41 @@ TEST_F(MapperSceneTest, MeshIsAccurateAndTilesAreSeamless) {
       border, crossing, Median(others));
   EXPECT_GT(crossing, 100u);
   EXPECT_LE(border, 2 * Median(others) + 10);
+}
+
+TEST_F(MapperSceneTest, OutlierRemovalDropsPlantedOutliersAndKeepsSurface) {
+  // The robot ended at x = 30: its box covers x in [20, 40). Surface points there that the map
+  // observed, and planted "returns" floating in the free corridor (a person who walked away).
+  std::vector<Vec3f> points, origins;
+  QueryResult q;
+  std::vector<float> xyz;
+  const auto surface =
+      scene_->SampleSurface(Eigen::Vector3f(21, -8, -0.5f), Eigen::Vector3f(29, 8, 4.f), 3000, 11);
+  for (const auto& s : surface) xyz.insert(xyz.end(), {s.p.x(), s.p.y(), s.p.z()});
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), surface.size(), false, &q).ok());
+  for (size_t i = 0; i < surface.size(); ++i)
+    if (q.observed[i]) points.push_back(surface[i].p);
+  const size_t n_surface = points.size();
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> ux(21, 29), uy(-1.5f, 1.5f), uz(0.4f, 2.5f);
+  while (points.size() < n_surface + 500) {
+    const Vec3f p(ux(rng), uy(rng), uz(rng));
+    if (scene_->Sdf(p) > 0.3f) points.push_back(p);
+  }
+  origins.assign(points.size(), Vec3f(30, 0, 1.6f));
+  BufferConfig config;
+  config.max_points_per_frame = int(points.size());
+  PointBuffer buffer(config, 1);
+  buffer.AddFrame(points, origins);
+  ASSERT_EQ(buffer.size(), points.size());
+  RemoveOutliers(mapper_->local_map(), mapper_->decoder(), 0.05f, &buffer);
+  size_t kept_surface = 0, kept_outliers = 0;
+  for (const Vec3f& p : buffer.points()) (scene_->Sdf(p) > 0.3f ? kept_outliers : kept_surface)++;
+  std::printf("outlier removal: kept %zu of %zu surface points, %zu of 500 outliers\n",
+              kept_surface, n_surface, kept_outliers);
+  ASSERT_GT(n_surface, 500u);
+  EXPECT_GT(double(kept_surface) / n_surface, 0.9);
+  EXPECT_LT(kept_outliers, 10u);
 }
 
 TEST_F(MapperSceneTest, SaveLoadGivesIdenticalAnswers) {

@@ -1,0 +1,245 @@
+// Mapper façade on a small map: bad input changes nothing, the decoder freezes, iteration
+// clamping, tile versions, spilling under a memory budget, and load errors that name the file.
+#include "rim/mapper.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+
+#include "rim/decoder.h"
+#include "rim/submap_store.h"
+#include "support/analytic_scene.h"
+
+namespace rim {
+namespace {
+
+using ::testing::HasSubstr;
+using testing_support::AnalyticScene;
+
+MapperConfig SmallConfig(std::vector<std::string> extra = {}) {
+  auto config = MakePreset("maicity");
+  std::vector<std::string> overrides = {"grid.half_extent_x_m=2",
+                                        "grid.half_extent_y_m=2",
+                                        "grid.z_min_m=-1.2",
+                                        "grid.z_max_m=1.2",
+                                        "train.iterations=3",
+                                        "train.min_iterations=2",
+                                        "sampler.rays_per_iteration=256"};
+  overrides.insert(overrides.end(), extra.begin(), extra.end());
+  EXPECT_TRUE(ApplyOverrides(overrides, &*config).ok());
+  return *config;
+}
+
+AnalyticScene SmallScene() {
+  AnalyticScene scene;
+  scene.boxes.push_back({Eigen::Vector3f(1.f, 0.5f, -0.5f), Eigen::Vector3f(1.8f, 1.5f, 0.8f)});
+  return scene;
+}
+
+PosedScan ScanAt(const AnalyticScene& scene, float x, uint32_t seed) {
+  testing_support::LidarModel lidar;
+  lidar.beams = 16;
+  lidar.columns = 360;
+  lidar.max_range_m = 8.f;
+  Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
+  T.translation() = Eigen::Vector3f(x, 0.f, 1.f);
+  PosedScan scan;
+  scan.T_world_sensor = T.cast<double>();
+  for (const auto& p : testing_support::SimulateScan(scene, lidar, T, seed))
+    scan.points_S.push_back(p);
+  return scan;
+}
+
+// Points on the front face (x = 1 m) of the scene's box, which the first scan sees.
+std::vector<float> Probe() {
+  std::vector<float> xyz;
+  for (float y = 0.6f; y <= 1.4f; y += 0.2f)
+    for (float z = -0.2f; z <= 0.7f; z += 0.15f) xyz.insert(xyz.end(), {1.f, y, z});
+  return xyz;
+}
+
+class MapperTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto mapper = Mapper::Create(SmallConfig());
+    ASSERT_TRUE(mapper.ok());
+    mapper_ = std::move(*mapper);
+    ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 1)).ok());
+  }
+  QueryResult Query() {
+    const std::vector<float> xyz = Probe();
+    QueryResult q;
+    EXPECT_TRUE(mapper_->QuerySdf(xyz.data(), xyz.size() / 3, true, &q).ok());
+    return q;
+  }
+  AnalyticScene scene_ = SmallScene();
+  std::unique_ptr<Mapper> mapper_;
+};
+
+TEST_F(MapperTest, InvalidScansAreRejectedAndChangeNothing) {
+  const QueryResult before = Query();
+  const MapperStats stats = mapper_->Stats();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  struct Case {
+    const char* field;
+    std::function<void(PosedScan*)> spoil;
+  };
+  const std::vector<Case> cases = {
+      {"scan.points[3]", [&](PosedScan* s) { s->points_S[3].y() = nan; }},
+      {"scan.points[0]", [&](PosedScan* s) { s->points_S[0].x() = INFINITY; }},
+      {"scan.pose", [&](PosedScan* s) { s->T_world_sensor.translation().x() = nan; }},
+      {"scan.pose rotation", [&](PosedScan* s) { s->T_world_sensor.linear() *= 1.5; }},
+      {"scan.points is empty", [&](PosedScan* s) { s->points_S.clear(); }},
+      {"scan.origins", [&](PosedScan* s) { s->origins_S.resize(2); }},
+      {"scan.pose translation", [&](PosedScan* s) { s->T_world_sensor.translation().z() = 1e9; }},
+  };
+  for (const Case& c : cases) {
+    PosedScan scan = ScanAt(scene_, 0.5f, 2);
+    c.spoil(&scan);
+    const absl::Status s = mapper_->IntegrateScan(scan);
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << c.field;
+    EXPECT_THAT(std::string(s.message()), HasSubstr(c.field));
+  }
+  const MapperStats after = mapper_->Stats();
+  EXPECT_EQ(after.frames, stats.frames);
+  EXPECT_EQ(after.map_version, stats.map_version);
+  EXPECT_EQ(after.buffer_points, stats.buffer_points);
+  const QueryResult again = Query();
+  EXPECT_EQ(again.sdf, before.sdf);
+}
+
+TEST_F(MapperTest, InvalidQueriesAreRejected) {
+  QueryResult q;
+  std::vector<float> xyz = {0.f, 0.f, 0.f, std::numeric_limits<float>::quiet_NaN(), 0.f, 0.f};
+  absl::Status s = mapper_->QuerySdf(xyz.data(), 2, false, &q);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("points[1]"));
+  xyz = {1e30f, 0.f, 0.f};
+  EXPECT_EQ(mapper_->QuerySdf(xyz.data(), 1, false, &q).code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST_F(MapperTest, FarAwayQueriesAreUnobserved) {
+  std::vector<float> xyz = {500.f, -300.f, 20.f};
+  QueryResult q;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), 1, true, &q).ok());
+  EXPECT_EQ(q.observed[0], 0);
+  EXPECT_TRUE(std::isfinite(q.sdf[0]));
+}
+
+TEST(MapperFreezeTest, DecoderFreezesAfterConfiguredFrames) {
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig({"decoder.freeze_after_frames=2"}));
+  ASSERT_TRUE(mapper.ok());
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 1)).ok());
+  const std::vector<float> p1 = (*mapper)->decoder().params();
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 2)).ok());
+  const std::vector<float> p2 = (*mapper)->decoder().params();
+  EXPECT_NE(p1, p2);  // frame 2 still trains the decoder
+  EXPECT_TRUE((*mapper)->Stats().decoder_frozen);
+  std::vector<float> xyz = Probe();
+  QueryResult before, after;
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &before).ok());
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 3)).ok());
+  EXPECT_EQ((*mapper)->decoder().params(), p2);  // frozen from frame 3 on
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &after).ok());
+  EXPECT_NE(before.sdf, after.sdf);  // ...while the features keep learning
+}
+
+TEST_F(MapperTest, IterationsAreClampedToConfiguredRange) {
+  StageTimings t;
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 3), 1, &t).ok());
+  EXPECT_EQ(t.iterations, 2);  // min_iterations
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 4), 100, &t).ok());
+  EXPECT_EQ(t.iterations, 3);
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 5), -1, &t).ok());
+  EXPECT_EQ(t.iterations, 3);
+  EXPECT_GT(t.sample_s + t.encode_s + t.forward_s + t.backward_s + t.step_s, 0.0);
+  EXPECT_GE(t.total_s, t.sample_s + t.encode_s + t.forward_s + t.backward_s + t.step_s);
+}
+
+TEST_F(MapperTest, TilesReportOnlyChangesSinceAVersion) {
+  const uint64_t v = mapper_->map_version();
+  EXPECT_FALSE(mapper_->ListTiles(0).empty());
+  EXPECT_TRUE(mapper_->ListTiles(v).empty());
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 6)).ok());
+  const auto changed = mapper_->ListTiles(v);
+  ASSERT_FALSE(changed.empty());
+  for (const TileInfo& t : changed) {
+    EXPECT_GT(t.version, v);
+    EXPECT_NEAR((t.max_m - t.min_m).x(), 4.0, 1e-5);  // a tile is the size of the local map
+  }
+}
+
+TEST(MapperSpillTest, FrozenSubmapsSpillToDiskAndComeBack) {
+  const std::string spill = ::testing::TempDir() + "/rim_mapper_spill";
+  std::filesystem::remove_all(spill);
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(
+      SmallConfig({"submap.host_budget_bytes=1", "submap.spill_dir=" + spill,
+                   "submap.active_radius_submaps=0", "decoder.freeze_after_frames=3"}));
+  ASSERT_TRUE(mapper.ok());
+  // The box face is seen from the start; by x = 5 m the robot's map has left it behind for good,
+  // so its answers come from the sub-map store and must not change while it spills and reloads.
+  std::vector<float> xyz = Probe();
+  QueryResult left_behind;
+  for (float x = 0.f; x <= 12.f; x += 1.f) {
+    ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, x, uint32_t(10 + x))).ok());
+    if (x == 5.f)
+      ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &left_behind).ok());
+  }
+  const MapperStats stats = (*mapper)->Stats();
+  EXPECT_GT(stats.submaps_on_disk, 0);
+  EXPECT_GT(std::distance(std::filesystem::directory_iterator(spill), {}), 0);
+  QueryResult q;
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
+  size_t observed = 0;
+  for (uint8_t o : q.observed) observed += o;
+  EXPECT_GT(observed, 0u);
+  EXPECT_EQ(q.sdf, left_behind.sdf);
+  EXPECT_EQ(q.observed, left_behind.observed);
+  EXPECT_TRUE((*mapper)->store().last_error().ok());
+}
+
+TEST_F(MapperTest, LoadErrorsNameTheFile) {
+  const std::string dir = ::testing::TempDir() + "/rim_mapper_load_errors";
+  std::filesystem::remove_all(dir);
+  auto missing = Mapper::Load(dir);
+  EXPECT_EQ(missing.status().code(), absl::StatusCode::kNotFound);
+  EXPECT_THAT(std::string(missing.status().message()), HasSubstr(dir + "/CURRENT"));
+
+  ASSERT_TRUE(mapper_->Save(dir).ok());
+  ASSERT_TRUE(Mapper::Load(dir).ok());
+  std::string state;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
+    if (e.path().filename() == "state.rimf") state = e.path();
+  ASSERT_FALSE(state.empty());
+  {
+    std::fstream f(state, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(40);
+    char c;
+    f.read(&c, 1);
+    f.seekp(40);
+    c = char(c ^ 0x5a);
+    f.write(&c, 1);
+  }
+  auto corrupt = Mapper::Load(dir);
+  EXPECT_EQ(corrupt.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(corrupt.status().message()), HasSubstr("state.rimf"));
+
+  // A second save supersedes the corrupt checkpoint and removes it.
+  ASSERT_TRUE(mapper_->Save(dir).ok());
+  auto loaded = Mapper::Load(dir);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  size_t checkpoints = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    checkpoints += e.path().filename().string().rfind("ckpt-", 0) == 0;
+  EXPECT_EQ(checkpoints, 1u);
+}
+
+}  // namespace
+}  // namespace rim
