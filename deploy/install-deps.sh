@@ -8,7 +8,7 @@ PACKAGES=(
   # toolchain
   build-essential cmake ninja-build ccache pkg-config git ca-certificates
   # core
-  libtorch-dev libeigen3-dev libabsl-dev zlib1g-dev
+  libtorch-dev libeigen3-dev libabsl-dev zlib1g-dev libpng-dev
   # service
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev libdraco-dev

@@ -229,6 +229,12 @@ absl::StatusOr<Mesh> Mapper::ExtractMeshTile(const Int3& key) const {
   return ExtractTile(src, config_.mesh.resolution_m, key);
 }
 
+std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
+  saver_->Flush();
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  return rim::ObservedVoxels(MeshTileSource{*geometry_, *local_map_, *store_, *decoder_, mu_}, key);
+}
+
 MapperStats Mapper::Stats() const {
   std::shared_lock<std::shared_mutex> lock(mu_);
   MapperStats s;

@@ -80,6 +80,9 @@ class Mapper {
   // Marching cubes over one sub-map's observed voxels; neighbouring tiles share border vertices.
   absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key) const;
 
+  // Observed finest voxels of one sub-map (minimum-corner lattice indices): what its tile meshes.
+  std::vector<Int3> ObservedVoxels(const Int3& key) const;
+
   // Writes the whole state under `dir` as a new checkpoint, switched to atomically.
   absl::Status Save(const std::string& dir) const;
 

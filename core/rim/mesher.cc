@@ -11,21 +11,23 @@
 
 namespace rim {
 namespace {
-
 constexpr size_t kChunkPoints = 32768;
+}  // namespace
 
-// Observed finest voxels (minimum-corner lattice index) owned by sub-map `key`: from the live
-// local map where the box covers the sub-map, from the store elsewhere.
 std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
   const MapGeometry& geo = src.geometry;
   const Int3 cells = geo.cells(0);
   const Int3 tile_lo = key.cwiseProduct(cells), tile_hi = tile_lo + cells - Int3::Ones();
   std::vector<Int3> out;
   const LocalMap& map = src.local_map;
+  // The live map is authoritative for the voxels (cells) inside the box: lattice points lo..hi
+  // bound the cells lo..hi−1. The cell starting at hi lies outside the box and comes from the
+  // store like any other.
+  const IntBox box = map.LatticeBox(0);
+  const IntBox live_cells{box.lo, box.hi - Int3::Ones()};
   for (const Int3& g : src.store.ObservedCells(key))
-    if (!map.InBox(0, g)) out.push_back(g);
+    if (!map.placed() || !live_cells.Contains(g)) out.push_back(g);
   if (map.placed()) {
-    const IntBox box = map.LatticeBox(0);
     const Int3 lo = box.lo.cwiseMax(tile_lo);
     const Int3 hi = (box.hi - Int3::Ones()).cwiseMin(tile_hi);  // cells, not lattice points
     const auto& flags = map.level(0).flags;
@@ -38,8 +40,6 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
   }
   return out;
 }
-
-}  // namespace
 
 absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, const Int3& key) {
   const MapGeometry& geo = src.geometry;

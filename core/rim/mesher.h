@@ -19,6 +19,10 @@ struct MeshTileSource {
   std::shared_mutex& mutex;  // shared while reading the map, released between chunks
 };
 
+// Finest-level voxels (minimum-corner lattice index) owned by sub-map `key` that were observed:
+// from the live local map inside the box, from the store elsewhere. Caller holds the shared lock.
+std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key);
+
 // Meshes the tile of sub-map `key` at `resolution_m` (which divides the leaf size).
 // - Only observed finest voxels are visited (sparse), and a mesh cell is meshed only when all its
 //   grid points lie in observed voxels.

@@ -5,6 +5,7 @@
 #include <chrono>
 
 #include "absl/strings/str_cat.h"
+#include "rim/version.h"
 
 namespace rim {
 namespace {
@@ -12,6 +13,8 @@ double Now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 }  // namespace
+
+std::string TorchVersion() { return TORCH_VERSION; }
 
 absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const TrainStepInput& in) {
   TrainStepOutput out;

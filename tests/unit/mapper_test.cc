@@ -1,5 +1,6 @@
 // Mapper façade on a small map: bad input changes nothing, the decoder freezes, iteration
 // clamping, tile versions, spilling under a memory budget, and load errors that name the file.
+#include "rim/map_geometry.h"
 #include "rim/mapper.h"
 
 #include <gmock/gmock.h>
@@ -10,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <set>
 
 #include "rim/decoder.h"
 #include "rim/submap_store.h"
@@ -173,6 +175,40 @@ TEST_F(MapperTest, TilesReportOnlyChangesSinceAVersion) {
     EXPECT_GT(t.version, v);
     EXPECT_NEAR((t.max_m - t.min_m).x(), 4.0, 1e-5);  // a tile is the size of the local map
   }
+}
+
+TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxels) {
+  // Forward then back, so that the final box's faces cut through voxels observed earlier (which
+  // now live in the store): every observed voxel must belong to exactly one tile.
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig({"decoder.freeze_after_frames=3"}));
+  ASSERT_TRUE(mapper.ok());
+  for (float x : {0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 3.f, 1.f, 0.5f})
+    ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, x, uint32_t(20 + 10 * x))).ok());
+  std::set<std::array<int, 3>> tiled;
+  size_t total = 0;
+  for (const TileInfo& t : (*mapper)->ListTiles(0))
+    for (const Int3& g : (*mapper)->ObservedVoxels(t.key)) {
+      EXPECT_EQ(MapGeometry(SmallConfig().grid).SubmapOfLattice(0, g), t.key);
+      tiled.insert({g.x(), g.y(), g.z()});
+      ++total;
+    }
+  EXPECT_EQ(total, tiled.size());  // no voxel in two tiles
+  std::set<std::array<int, 3>> observed;
+  std::vector<float> xyz;
+  std::vector<std::array<int, 3>> cells;
+  for (int x = -40; x < 100; ++x)
+    for (int y = -40; y < 40; ++y)
+      for (int z = -20; z < 30; ++z) {
+        xyz.insert(xyz.end(), {(x + 0.5f) * 0.1f, (y + 0.5f) * 0.1f, (z + 0.5f) * 0.1f});
+        cells.push_back({x, y, z});
+      }
+  QueryResult q;
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), cells.size(), false, &q).ok());
+  for (size_t i = 0; i < cells.size(); ++i)
+    if (q.observed[i]) observed.insert(cells[i]);
+  EXPECT_GT(observed.size(), 100u);
+  EXPECT_EQ(tiled, observed);
 }
 
 TEST(MapperSpillTest, FrozenSubmapsSpillToDiskAndComeBack) {

@@ -1,0 +1,257 @@
+// rim_eval PRED.ply GT.ply [--json]: mesh accuracy against a ground truth (DESIGN.md §4.3).
+// Prints Acc, Comp, Chamfer-L1 (cm) and precision, recall, F-score (%), with the drop and the cap
+// of the paper's protocol ("standard") and without them ("strict"), as a table or as JSON.
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "rim/eval/mesh_eval.h"
+#include "rim/mesh_io.h"
+
+namespace {
+
+using rim::eval::EvalOptions;
+using rim::eval::EvalResult;
+using rim::eval::Metrics;
+
+constexpr char kUsage[] =
+    "usage: rim_eval PRED.ply GT.ply [--json] [--samples N] [--threads N] [--seed S]\n"
+    "                [--voxel M] [--no-crop]\n"
+    "  --json         print one JSON object instead of the table\n"
+    "  --samples N    points sampled on each mesh before voxel averaging (default 1e7)\n"
+    "  --threads N    worker threads (default: all cores)\n"
+    "  --seed S       sampling seed (default 1)\n"
+    "  --voxel M      voxel-averaging size in metres, 0 to disable (default 0.01)\n"
+    "  --no-crop      do not crop the prediction to the GT bounding box\n"
+    "  --region x0,y0,z0,x1,y1,z1\n"
+    "                 evaluate only inside this box: both meshes are clipped to it first\n";
+
+struct Args {
+  std::string pred_path, gt_path;
+  bool json = false;
+  EvalOptions options;
+  bool has_region = false;
+  std::array<float, 3> region_min{}, region_max{};
+};
+
+// Returns false (after printing why) on bad arguments.
+bool ParseArgs(int argc, char** argv, Args* args) {
+  std::vector<std::string> positional;
+  for (int i = 1; i < argc; ++i) {
+    std::string arg = argv[i], value;
+    const size_t eq = arg.find('=');
+    const bool has_inline = arg.rfind("--", 0) == 0 && eq != std::string::npos;
+    if (has_inline) {
+      value = arg.substr(eq + 1);
+      arg = arg.substr(0, eq);
+    }
+    auto next_value = [&](std::string* out) {
+      if (has_inline) {
+        *out = value;
+        return true;
+      }
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "rim_eval: %s needs a value\n%s", arg.c_str(), kUsage);
+        return false;
+      }
+      *out = argv[++i];
+      return true;
+    };
+    auto bad_value = [&](const std::string& v) {
+      std::fprintf(stderr, "rim_eval: bad value for %s: '%s'\n%s", arg.c_str(), v.c_str(), kUsage);
+      return false;
+    };
+    std::string v;
+    if (arg == "--help" || arg == "-h") {
+      std::fputs(kUsage, stdout);
+      std::exit(0);
+    } else if (arg == "--json" && !has_inline) {
+      args->json = true;
+    } else if (arg == "--no-crop" && !has_inline) {
+      args->options.crop_to_gt = false;
+    } else if (arg == "--samples") {
+      double d;  // accepts 1e7 as well as 10000000
+      if (!next_value(&v)) return false;
+      if (!absl::SimpleAtod(v, &d) || !(d >= 1 && d <= 1e9) || d != std::floor(d)) {
+        return bad_value(v);
+      }
+      args->options.samples = static_cast<int64_t>(d);
+    } else if (arg == "--threads") {
+      if (!next_value(&v)) return false;
+      if (!absl::SimpleAtoi(v, &args->options.threads) || args->options.threads < 1) {
+        return bad_value(v);
+      }
+    } else if (arg == "--seed") {
+      if (!next_value(&v)) return false;
+      if (!absl::SimpleAtoi(v, &args->options.seed)) return bad_value(v);
+    } else if (arg == "--region") {
+      // Crops both meshes: the part of the world the mapper was asked to reconstruct.
+      if (!next_value(&v)) return false;
+      std::vector<std::string> parts = absl::StrSplit(v, ',');
+      if (parts.size() != 6) return bad_value(v);
+      for (int k = 0; k < 6; ++k) {
+        double d;
+        if (!absl::SimpleAtod(parts[k], &d) || !std::isfinite(d)) return bad_value(v);
+        (k < 3 ? args->region_min : args->region_max)[k % 3] = float(d);
+      }
+      for (int k = 0; k < 3; ++k)
+        if (!(args->region_min[k] < args->region_max[k])) return bad_value(v);
+      args->has_region = true;
+    } else if (arg == "--voxel") {
+      if (!next_value(&v)) return false;
+      if (!absl::SimpleAtod(v, &args->options.voxel_m) || !(args->options.voxel_m >= 0)) {
+        return bad_value(v);
+      }
+    } else if (arg.rfind("-", 0) == 0 && arg != "-") {
+      std::fprintf(stderr, "rim_eval: unknown option %s\n%s", arg.c_str(), kUsage);
+      return false;
+    } else {
+      positional.push_back(arg);
+    }
+  }
+  if (positional.size() != 2) {
+    std::fprintf(stderr, "rim_eval: expected PRED.ply and GT.ply, got %zu file argument(s)\n%s",
+                 positional.size(), kUsage);
+    return false;
+  }
+  args->pred_path = positional[0];
+  args->gt_path = positional[1];
+  return true;
+}
+
+std::string JsonString(const std::string& s) {
+  std::string out = "\"";
+  for (unsigned char c : s) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += static_cast<char>(c);
+    } else if (c < 0x20) {
+      out += absl::StrFormat("\\u%04x", c);
+    } else {
+      out += static_cast<char>(c);
+    }
+  }
+  return out + "\"";
+}
+
+// JSON has no NaN: an undefined value (no prediction point kept) is null.
+std::string JsonNumber(double v, int decimals) {
+  return std::isfinite(v) ? absl::StrFormat("%.*f", decimals, v) : "null";
+}
+
+std::string MetricsJson(const Metrics& m) {
+  return absl::StrCat("{\"accuracy_cm\": ", JsonNumber(100 * m.accuracy_m, 4),
+                      ", \"completeness_cm\": ", JsonNumber(100 * m.completeness_m, 4),
+                      ", \"chamfer_l1_cm\": ", JsonNumber(100 * m.chamfer_l1_m, 4),
+                      ", \"precision_pct\": ", JsonNumber(100 * m.precision, 3),
+                      ", \"recall_pct\": ", JsonNumber(100 * m.recall, 3),
+                      ", \"fscore_pct\": ", JsonNumber(100 * m.fscore, 3), "}");
+}
+
+std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
+  const EvalOptions& o = args.options;
+  return absl::StrCat(
+      "{\n  \"prediction\": ", JsonString(args.pred_path),
+      ",\n  \"ground_truth\": ", JsonString(args.gt_path),
+      ",\n  \"standard\": ", MetricsJson(r.standard), ",\n  \"strict\": ", MetricsJson(r.strict),
+      ",\n  \"points\": {\"pred_samples\": ", r.pred_samples, ", \"gt_samples\": ", r.gt_samples,
+      ", \"pred\": ", r.pred_points, ", \"gt\": ", r.gt_points,
+      ", \"pred_dropped\": ", r.pred_dropped, ", \"gt_capped\": ", r.gt_capped, "}",
+      ",\n  \"area_m2\": {\"pred\": ", JsonNumber(r.pred_area_m2, 4),
+      ", \"gt\": ", JsonNumber(r.gt_area_m2, 4), "}",
+      ",\n  \"protocol\": {\"samples\": ", o.samples,
+      ", \"voxel_cm\": ", JsonNumber(100 * o.voxel_m, 3),
+      ", \"drop_cm\": ", JsonNumber(100 * o.drop_m, 3),
+      ", \"cap_cm\": ", JsonNumber(100 * o.cap_m, 3),
+      ", \"fscore_threshold_cm\": ", JsonNumber(100 * o.fscore_m, 3),
+      ", \"crop_to_gt\": ", o.crop_to_gt ? "true" : "false",
+      ", \"crop_margin_cm\": ", JsonNumber(100 * o.crop_margin_m, 3), ", \"seed\": ", o.seed, "}",
+      ",\n  \"seconds\": ", JsonNumber(seconds, 3), "\n}\n");
+}
+
+std::string TableRow(const char* name, const Metrics& m) {
+  auto f = [](double v, int width, int decimals) {
+    return std::isfinite(v) ? absl::StrFormat("%*.*f", width, decimals, v)
+                            : absl::StrFormat("%*s", width, "n/a");
+  };
+  return absl::StrCat(absl::StrFormat("%-10s", name), f(100 * m.accuracy_m, 10, 3),
+                      f(100 * m.completeness_m, 11, 3), f(100 * m.chamfer_l1_m, 11, 3),
+                      f(100 * m.precision, 11, 2), f(100 * m.recall, 11, 2),
+                      f(100 * m.fscore, 11, 2), "\n");
+}
+
+std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
+  const EvalOptions& o = args.options;
+  auto pct = [](int64_t part, int64_t whole) { return 100.0 * part / std::max<int64_t>(whole, 1); };
+  std::string out =
+      absl::StrCat("prediction:   ", args.pred_path, "\nground truth: ", args.gt_path, "\n");
+  absl::StrAppendFormat(&out,
+                        "samples: pred %d on %.2f m^2 -> %d points, GT %d on %.2f m^2 -> %d "
+                        "points (%g cm voxel averaging)\n",
+                        r.pred_samples, r.pred_area_m2, r.pred_points, r.gt_samples, r.gt_area_m2,
+                        r.gt_points, 100 * o.voxel_m);
+  absl::StrAppend(&out,
+                  "\n            Acc [cm]  Comp [cm]  C-L1 [cm]   Prec [%]    Rec [%]      F [%]\n",
+                  TableRow("standard", r.standard), TableRow("strict", r.strict), "\n");
+  absl::StrAppendFormat(&out,
+                        "standard: pred->GT distances >= %g cm dropped (%d points, %.2f%%), "
+                        "GT->pred capped at %g cm (%d points, %.2f%%)\n",
+                        100 * o.drop_m, r.pred_dropped, pct(r.pred_dropped, r.pred_points),
+                        100 * o.cap_m, r.gt_capped, pct(r.gt_capped, r.gt_points));
+  absl::StrAppend(&out, "strict: no drop, no cap (floaters count)\n");
+  absl::StrAppendFormat(
+      &out, "F-score threshold %g cm; crop to GT box: %s; seed %d; %.1f s\n", 100 * o.fscore_m,
+      o.crop_to_gt ? absl::StrFormat("on (+%g cm)", 100 * o.crop_margin_m) : std::string("off"),
+      o.seed, seconds);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  args.options.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  if (!ParseArgs(argc, argv, &args)) return 2;
+  if (absl::Status s = rim::eval::ValidateEvalOptions(args.options); !s.ok()) {
+    std::fprintf(stderr, "rim_eval: %s\n", std::string(s.message()).c_str());
+    return 2;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  absl::StatusOr<rim::Mesh> pred = rim::ReadMeshPly(args.pred_path);
+  if (!pred.ok()) {
+    std::fprintf(stderr, "rim_eval: cannot read prediction: %s\n",
+                 std::string(pred.status().message()).c_str());
+    return 1;
+  }
+  absl::StatusOr<rim::Mesh> gt = rim::ReadMeshPly(args.gt_path);
+  if (!gt.ok()) {
+    std::fprintf(stderr, "rim_eval: cannot read ground truth: %s\n",
+                 std::string(gt.status().message()).c_str());
+    return 1;
+  }
+  if (args.has_region) {
+    *pred = rim::eval::CropMeshToBox(*pred, args.region_min, args.region_max);
+    *gt = rim::eval::CropMeshToBox(*gt, args.region_min, args.region_max);
+  }
+  absl::StatusOr<EvalResult> result = rim::eval::EvaluateMeshes(*pred, *gt, args.options);
+  if (!result.ok()) {
+    std::fprintf(stderr, "rim_eval: %s\n", std::string(result.status().message()).c_str());
+    return 1;
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const std::string out =
+      args.json ? FormatJson(args, *result, seconds) : FormatTable(args, *result, seconds);
+  std::fputs(out.c_str(), stdout);
+  return 0;
+}

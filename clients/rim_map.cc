@@ -1,0 +1,262 @@
+// rim_map: offline mapping of a dataset with the core mapper, no server.
+//
+//   rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]
+//           [--config FILE] [--tiles]
+//
+// Writes DIR/mesh.ply (all tiles, welded), DIR/tiles/*.ply with --tiles, DIR/timing.json
+// (per-stage mean times, ms/frame, frames/s, peak and per-frame memory) and DIR/run.json (config
+// and versions), and prints the per-stage table in the layout of the paper's module-time table.
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "rim/binary_io.h"
+#include "rim/config.h"
+#include "rim/io/dataset.h"
+#include "rim/mapper.h"
+#include "rim/mesh_io.h"
+#include "rim/status_macros.h"
+#include "rim/submap_store.h"
+#include "rim/version.h"
+
+namespace rim {
+namespace {
+
+struct Args {
+  std::string dataset, preset = "maicity", out, config_file;
+  std::vector<std::string> overrides;
+  long first = 0, last = -1;  // [first, last), last < 0: to the end
+  bool tiles = false;
+};
+
+constexpr char kUsage[] =
+    "usage: rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]\n"
+    "               [--config FILE] [--tiles]\n";
+
+absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&](const char* name) -> absl::StatusOr<std::string> {
+      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
+      return std::string(argv[++i]);
+    };
+    if (arg == "--preset") {
+      RIM_ASSIGN_OR_RETURN(a.preset, value("--preset"));
+    } else if (arg == "--out") {
+      RIM_ASSIGN_OR_RETURN(a.out, value("--out"));
+    } else if (arg == "--config") {
+      RIM_ASSIGN_OR_RETURN(a.config_file, value("--config"));
+    } else if (arg == "--set") {
+      RIM_ASSIGN_OR_RETURN(std::string kv, value("--set"));
+      a.overrides.push_back(kv);
+    } else if (arg == "--tiles") {
+      a.tiles = true;
+    } else if (arg == "--frames") {
+      RIM_ASSIGN_OR_RETURN(std::string range, value("--frames"));
+      std::vector<std::string> parts = absl::StrSplit(range, ':');
+      if (parts.size() != 2 || (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
+          (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
+        return absl::InvalidArgumentError(absl::StrCat("--frames '", range, "' is not A:B"));
+    } else if (arg == "-h" || arg == "--help") {
+      return absl::CancelledError(kUsage);
+    } else if (!arg.empty() && arg[0] == '-') {
+      return absl::InvalidArgumentError(absl::StrCat("unknown option ", arg));
+    } else if (a.dataset.empty()) {
+      a.dataset = arg;
+    } else {
+      return absl::InvalidArgumentError(absl::StrCat("unexpected argument ", arg));
+    }
+  }
+  if (a.dataset.empty()) return absl::InvalidArgumentError("missing DATASET");
+  if (a.out.empty()) return absl::InvalidArgumentError("missing --out DIR");
+  return a;
+}
+
+double CurrentRssMb() {
+  std::ifstream statm("/proc/self/statm");
+  long pages = 0, resident = 0;
+  statm >> pages >> resident;
+  return double(resident) * double(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+
+double PeakRssMb() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_maxrss) / 1024.0;  // kilobytes on Linux
+}
+
+std::string JsonString(const std::string& s) {
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"' || c == '\\') out += '\\';
+    if (c == '\n') {
+      out += "\\n";
+      continue;
+    }
+    out += c;
+  }
+  return out + "\"";
+}
+
+void ProgressBar(size_t done, size_t total, double ms_per_frame, float loss) {
+  const int width = 30;
+  const int filled = total ? int(width * done / total) : width;
+  std::fprintf(stderr, "\r[%s%s] %zu/%zu frames  %.0f ms/frame  loss %.4f ",
+               std::string(filled, '#').c_str(), std::string(width - filled, '.').c_str(), done,
+               total, ms_per_frame, loss);
+  std::fflush(stderr);
+}
+
+absl::Status Run(const Args& args) {
+  MapperConfig config;
+  if (!args.config_file.empty()) {
+    RIM_ASSIGN_OR_RETURN(config, LoadConfigFile(args.config_file, args.overrides));
+  } else {
+    RIM_ASSIGN_OR_RETURN(config, MakePreset(args.preset));
+    RIM_RETURN_IF_ERROR(ApplyOverrides(args.overrides, &config));
+  }
+  RIM_ASSIGN_OR_RETURN(auto dataset, io::Dataset::Open(args.dataset));
+  const long n = long(dataset->size());
+  const long first = std::min(args.first, n), last = args.last < 0 ? n : std::min(args.last, n);
+  if (first >= last)
+    return absl::InvalidArgumentError(absl::StrCat("--frames selects no frame of ", n));
+  RIM_RETURN_IF_ERROR(MakeDirs(args.out));
+  std::fprintf(stderr, "rim_map: %s (%s, %ld frames), preset %s\n", args.dataset.c_str(),
+               io::LayoutName(dataset->layout()), last - first, config.preset.c_str());
+  RIM_ASSIGN_OR_RETURN(auto mapper, Mapper::Create(config));
+
+  StageTimings sum;
+  std::vector<double> rss_mb, ms_per_frame;
+  const auto start = std::chrono::steady_clock::now();
+  for (long i = first; i < last; ++i) {
+    RIM_ASSIGN_OR_RETURN(PosedScan scan, dataset->Read(size_t(i)));
+    StageTimings t;
+    RIM_RETURN_IF_ERROR(mapper->IntegrateScan(scan, -1, &t));
+    sum.slide_s += t.slide_s;
+    sum.preprocess_s += t.preprocess_s;
+    sum.sample_s += t.sample_s;
+    sum.encode_s += t.encode_s;
+    sum.forward_s += t.forward_s;
+    sum.backward_s += t.backward_s;
+    sum.step_s += t.step_s;
+    sum.total_s += t.total_s;
+    sum.iterations += t.iterations;
+    rss_mb.push_back(CurrentRssMb());
+    ms_per_frame.push_back(1e3 * t.total_s);
+    ProgressBar(size_t(i - first + 1), size_t(last - first), 1e3 * sum.total_s / double(i - first + 1),
+                t.loss);
+  }
+  std::fprintf(stderr, "\n");
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  // Mesh every tile and weld the shared border vertices.
+  const auto mesh_start = std::chrono::steady_clock::now();
+  Mesh merged;
+  if (args.tiles) RIM_RETURN_IF_ERROR(MakeDirs(args.out + "/tiles"));
+  for (const TileInfo& tile : mapper->ListTiles(0)) {
+    RIM_ASSIGN_OR_RETURN(Mesh mesh, mapper->ExtractMeshTile(tile.key));
+    if (mesh.empty()) continue;
+    if (args.tiles)
+      RIM_RETURN_IF_ERROR(WriteMeshPly(
+          absl::StrCat(args.out, "/tiles/tile_", SubmapKeyName(tile.key), ".ply"), mesh));
+    AppendMesh(mesh, &merged);
+  }
+  merged = WeldIdenticalVertices(merged);
+  RIM_RETURN_IF_ERROR(WriteMeshPly(args.out + "/mesh.ply", merged));
+  const double mesh_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - mesh_start).count();
+
+  const double frames = double(last - first);
+  const double iters = std::max(1, sum.iterations);
+  struct Row {
+    const char* name;
+    double seconds;
+    bool per_iteration;
+  };
+  const Row rows[] = {{"slide", sum.slide_s, false},       {"preprocess", sum.preprocess_s, false},
+                      {"sample", sum.sample_s, true},      {"encode", sum.encode_s, true},
+                      {"forward", sum.forward_s, true},    {"backward", sum.backward_s, true},
+                      {"step", sum.step_s, true}};
+  std::printf("\n%-12s %12s %12s\n", "module", "ms/frame", "ms/iter");
+  for (const Row& r : rows) {
+    if (r.per_iteration)
+      std::printf("%-12s %12.2f %12.3f\n", r.name, 1e3 * r.seconds / frames, 1e3 * r.seconds / iters);
+    else
+      std::printf("%-12s %12.2f %12s\n", r.name, 1e3 * r.seconds / frames, "-");
+  }
+  std::printf("%-12s %12.2f %12s\n", "total", 1e3 * sum.total_s / frames, "-");
+  std::printf("\n%.0f frames, %.1f iterations/frame, %.2f frames/s, peak RSS %.0f MB\n", frames,
+              iters / frames, frames / wall_s, PeakRssMb());
+  std::printf("mesh: %zu vertices, %zu faces in %.1f s -> %s/mesh.ply\n", merged.vertices.size(),
+              merged.faces.size(), mesh_s, args.out.c_str());
+
+  std::string timing = "{\n  \"stages_ms_per_frame\": {";
+  for (const Row& r : rows) absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / frames);
+  timing.resize(timing.size() - 2);
+  timing += "},\n  \"stages_ms_per_iteration\": {";
+  for (const Row& r : rows)
+    if (r.per_iteration) absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / iters);
+  timing.resize(timing.size() - 2);
+  absl::StrAppendFormat(&timing,
+                        "},\n  \"ms_per_frame\": %.3f,\n  \"frames_per_s\": %.4f,\n  \"frames\": %.0f,\n"
+                        "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
+                        "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n  \"rss_mb_per_frame\": [",
+                        1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames,
+                        PeakRssMb(), mesh_s);
+  for (size_t i = 0; i < rss_mb.size(); ++i) absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
+  timing += "],\n  \"ms_per_frame_series\": [";
+  for (size_t i = 0; i < ms_per_frame.size(); ++i)
+    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", ms_per_frame[i]);
+  timing += "]\n}\n";
+
+  std::string run = "{\n  \"rim_version\": " + JsonString(kRimVersion) +
+                    ",\n  \"libtorch_version\": " + JsonString(TorchVersion()) +
+                    ",\n  \"dataset\": " + JsonString(args.dataset) +
+                    ",\n  \"layout\": " + JsonString(io::LayoutName(dataset->layout())) +
+                    absl::StrFormat(",\n  \"frames\": [%ld, %ld]", first, last) + ",\n  \"config\": {";
+  bool first_key = true;
+  for (absl::string_view line : absl::StrSplit(config.ToString(), '\n', absl::SkipEmpty())) {
+    std::vector<std::string> kv = absl::StrSplit(line, absl::MaxSplits(" = ", 1));
+    if (kv.size() != 2) continue;
+    absl::StrAppend(&run, first_key ? "\n    " : ",\n    ", JsonString(kv[0]), ": ", JsonString(kv[1]));
+    first_key = false;
+  }
+  run += "\n  }\n}\n";
+  for (const auto& [name, text] : {std::pair<std::string, std::string>{"timing.json", timing},
+                                   {"run.json", run}}) {
+    std::ofstream f(args.out + "/" + name);
+    f << text;
+    if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/", name));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+}  // namespace rim
+
+int main(int argc, char** argv) {
+  auto args = rim::ParseArgs(argc, argv);
+  if (!args.ok()) {
+    if (absl::IsCancelled(args.status())) {
+      std::fputs(rim::kUsage, stdout);
+      return 0;
+    }
+    std::fprintf(stderr, "rim_map: %s\n%s", std::string(args.status().message()).c_str(), rim::kUsage);
+    return 2;
+  }
+  const absl::Status s = rim::Run(*args);
+  if (!s.ok()) {
+    std::fprintf(stderr, "rim_map: %s\n", s.ToString().c_str());
+    return 1;
+  }
+  return 0;
+}

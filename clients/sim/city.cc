@@ -1,0 +1,339 @@
+#include "sim/city.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <utility>
+#include <vector>
+
+#include "sim/rng.h"
+
+namespace rim::sim {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = kPi / 180.0;
+
+// Cross-section of a street, lateral distance from its centre line.
+constexpr double kRoadHalfWidth = 4.5;
+constexpr double kParkOffset = 3.45;  // parked car centre
+constexpr double kPoleOffset = 4.9;
+constexpr double kTreeOffset = 5.2;
+constexpr double kWalkerMin = 6.0, kWalkerMax = 7.8;  // sidewalk band walkers use
+constexpr double kFrontage = 9.5;  // buildings start at least this far from a centre line
+// Street furniture stays this far (along the street) from intersection centres.
+constexpr double kIntersectionClear = 14.0;
+// Streets (centre lines) at x = i * pitch for i in [kMinI, kMaxI], y = j * pitch for j in
+// [kMinJ, kMaxJ]; the drive loop goes round the blocks [0, 2 pitch] x [0, pitch].
+constexpr int kMinI = -1, kMaxI = 3, kMinJ = -1, kMaxJ = 2;
+constexpr double kSink = 0.03;  // solids reach this far below the ground so that nothing floats
+// The cross-section must leave the sensor's lane, parked cars and sidewalk objects apart.
+static_assert(kLaneOffset + 0.5 < kParkOffset - 0.95, "parked cars too close to the lane");
+static_assert(kParkOffset + 0.95 < kRoadHalfWidth, "parked cars must stay on the road");
+static_assert(kRoadHalfWidth < kPoleOffset && kTreeOffset + 0.5 < kWalkerMin,
+              "poles and trees stand on the sidewalk, clear of the walkers");
+static_assert(kWalkerMax + 0.3 < kFrontage, "walkers stay clear of the buildings");
+
+double WrapAngle(double a) {
+  a = std::fmod(a + kPi, 2 * kPi);
+  if (a < 0) a += 2 * kPi;
+  return a - kPi;
+}
+
+// Corners of a rectangle (centre, half extents, yaw) counter-clockwise.
+std::array<Vec2, 4> RectCorners(const Vec2& c, const Vec2& h, double yaw) {
+  const Vec2 u(std::cos(yaw), std::sin(yaw)), v(-std::sin(yaw), std::cos(yaw));
+  return {c - h.x() * u - h.y() * v, c + h.x() * u - h.y() * v, c + h.x() * u + h.y() * v,
+          c - h.x() * u + h.y() * v};
+}
+
+// True if two convex quads are at least `gap` apart along some edge normal (separating axis).
+bool Separated(const std::array<Vec2, 4>& a, const std::array<Vec2, 4>& b, double gap) {
+  for (const auto* poly : {&a, &b}) {
+    for (int i = 0; i < 4; ++i) {
+      const Vec2 e = (*poly)[(i + 1) % 4] - (*poly)[i];
+      const Vec2 n = Vec2(-e.y(), e.x()).normalized();
+      double amin = 1e300, amax = -1e300, bmin = 1e300, bmax = -1e300;
+      for (const Vec2& p : a) {
+        amin = std::min(amin, n.dot(p));
+        amax = std::max(amax, n.dot(p));
+      }
+      for (const Vec2& p : b) {
+        bmin = std::min(bmin, n.dot(p));
+        bmax = std::max(bmax, n.dot(p));
+      }
+      if (amax + gap <= bmin || bmax + gap <= amin) return true;
+    }
+  }
+  return false;
+}
+
+struct Footprint2d {
+  std::array<Vec2, 4> corners;
+};
+
+class CityBuilder {
+ public:
+  explicit CityBuilder(uint64_t seed) : rng_(HashSeed(seed, 0xC17Eull)) {}
+
+  Scene Build() {
+    scene_.has_ground = true;
+    scene_.ground_z = 0.0;
+    for (int i = kMinI; i < kMaxI; ++i) {
+      for (int j = kMinJ; j < kMaxJ; ++j) Block(i * kBlockPitch, j * kBlockPitch);
+    }
+    // Street segments between neighbouring intersections, both sides.
+    for (int j = kMinJ; j <= kMaxJ; ++j) {
+      for (int i = kMinI; i < kMaxI; ++i) {
+        const Vec2 a(i * kBlockPitch, j * kBlockPitch);
+        StreetSide(a, 0.0, +1);
+        StreetSide(a, 0.0, -1);
+      }
+    }
+    for (int i = kMinI; i <= kMaxI; ++i) {
+      for (int j = kMinJ; j < kMaxJ; ++j) {
+        const Vec2 a(i * kBlockPitch, j * kBlockPitch);
+        StreetSide(a, kPi / 2, +1);
+        StreetSide(a, kPi / 2, -1);
+      }
+    }
+    return std::move(scene_);
+  }
+
+ private:
+  void Add(Shape shape, Material material) { scene_.primitives.push_back({shape, material}); }
+
+  // Buildings along the four sides of the block with lower-left street corner (x0, y0).
+  void Block(double x0, double y0) {
+    const Vec2 lo(x0 + kFrontage, y0 + kFrontage);
+    const Vec2 hi(x0 + kBlockPitch - kFrontage, y0 + kBlockPitch - kFrontage);
+    std::vector<Footprint2d> placed;
+    // Side k: start corner, direction along the side, inward normal.
+    const std::array<Vec2, 4> starts = {Vec2(lo.x(), lo.y()), Vec2(hi.x(), lo.y()),
+                                        Vec2(hi.x(), hi.y()), Vec2(lo.x(), hi.y())};
+    const double side_len = hi.x() - lo.x();
+    for (int k = 0; k < 4; ++k) {
+      const double dir_angle = k * kPi / 2;
+      const Vec2 along(std::cos(dir_angle), std::sin(dir_angle));
+      const Vec2 inward(-along.y(), along.x());
+      double u = rng_.Uniform(0.0, 4.0);
+      while (u < side_len - 6.0) {
+        if (rng_.Bernoulli(0.08)) {  // an empty lot
+          u += rng_.Uniform(8.0, 16.0);
+          continue;
+        }
+        const double width = rng_.Uniform(8.0, 25.0);
+        const double depth = rng_.Uniform(8.0, 20.0);
+        const double height = rng_.Uniform(4.0, 20.0);
+        const double setback = rng_.Uniform(0.0, 2.5);
+        const double yaw_jitter = rng_.Bernoulli(0.25) ? rng_.Uniform(-35.0, 35.0) * kDeg
+                                                       : rng_.Uniform(-4.0, 4.0) * kDeg;
+        const double yaw = dir_angle + yaw_jitter;
+        const Vec2 half(0.5 * std::min(width, side_len - u), 0.5 * depth);
+        Vec2 center = starts[k] + (u + half.x()) * along + (setback + half.y()) * inward;
+        // Push the rotated footprint inward until it clears the street frontage.
+        auto corners = RectCorners(center, half, yaw);
+        double worst = 0.0;
+        for (const Vec2& p : corners)
+          worst = std::min(worst, (p - starts[k]).dot(inward) - setback);
+        center -= worst * inward;
+        corners = RectCorners(center, half, yaw);
+        bool ok = half.x() >= 3.0;
+        for (const Vec2& p : corners) {
+          ok = ok && p.x() >= lo.x() && p.x() <= hi.x() && p.y() >= lo.y() && p.y() <= hi.y();
+        }
+        for (const Footprint2d& f : placed) ok = ok && Separated(f.corners, corners, 0.5);
+        if (!ok) {
+          u += 3.0;
+          continue;
+        }
+        placed.push_back({corners});
+        Add(MakeBoxZ(center, half, yaw, -kSink, height), Material::kBuilding);
+        u += 2 * half.x() + rng_.Uniform(0.5, 4.0);
+      }
+    }
+  }
+
+  // Trees, poles and parked cars on one side (+1 left, -1 right of travel along `heading`) of the
+  // street segment that starts at intersection `a` and runs one block along `heading`.
+  void StreetSide(const Vec2& a, double heading, int side) {
+    const Vec2 along(std::cos(heading), std::sin(heading));
+    const Vec2 left(-along.y(), along.x());
+    const double s_lo = kIntersectionClear, s_hi = kBlockPitch - kIntersectionClear;
+    auto at = [&](double s, double lateral) { return Vec2(a + s * along + side * lateral * left); };
+
+    std::vector<double> tree_s;
+    for (double s = s_lo + rng_.Uniform(0.0, 6.0); s < s_hi; s += rng_.Uniform(10.0, 16.0)) {
+      if (!rng_.Bernoulli(0.8)) continue;
+      tree_s.push_back(s);
+      Tree(at(s, kTreeOffset + rng_.Uniform(-0.2, 0.2)));
+    }
+    for (double s = s_lo + rng_.Uniform(0.0, 15.0); s < s_hi; s += rng_.Uniform(20.0, 30.0)) {
+      bool clear = true;
+      for (double t : tree_s) clear = clear && std::abs(t - s) > 2.5;
+      if (!clear) continue;
+      Pole(at(s, kPoleOffset), -side * left);
+    }
+    for (double s = s_lo; s < s_hi - 5.0;) {
+      if (rng_.Bernoulli(0.35)) {
+        const double length = rng_.Uniform(3.9, 4.8);
+        if (s + length > s_hi) break;
+        const double yaw =
+            heading + (rng_.Bernoulli(0.5) ? 0.0 : kPi) + rng_.Uniform(-2.0, 2.0) * kDeg;
+        Car(at(s + 0.5 * length, kParkOffset), length, yaw);
+        s += length + rng_.Uniform(1.0, 4.0);
+      } else {
+        s += rng_.Uniform(4.0, 10.0);
+      }
+    }
+  }
+
+  void Tree(const Vec2& p) {
+    const double trunk_r = rng_.Uniform(0.12, 0.25);
+    if (rng_.Bernoulli(0.6)) {  // broadleaf: sphere crown
+      const double r = rng_.Uniform(1.4, 2.2);
+      const double bottom = rng_.Uniform(2.4, 3.2);
+      const Vec3 c(p.x(), p.y(), bottom + r);
+      // The trunk ends 5 cm inside the crown so that the union is closed.
+      const double top = c.z() - std::sqrt(r * r - trunk_r * trunk_r) + 0.05;
+      Add(Cylinder{p, trunk_r, -kSink, top}, Material::kTree);
+      Add(Sphere{c, r}, Material::kTree);
+    } else {  // conifer: cone crown
+      const double r = rng_.Uniform(1.2, 1.8);
+      const double base = rng_.Uniform(2.2, 2.8);
+      const double h = rng_.Uniform(4.0, 7.0);
+      Add(Cylinder{p, trunk_r, -kSink, base + 0.1}, Material::kTree);
+      Add(Cone{p, r, base, base + h}, Material::kTree);
+    }
+  }
+
+  // A street light: a thin pole, and on most of them an arm reaching over the road (`to_road`).
+  void Pole(const Vec2& p, const Vec2& to_road) {
+    const double r = rng_.Uniform(0.08, 0.12);
+    const double h = rng_.Uniform(5.0, 9.0);
+    Add(Cylinder{p, r, -kSink, h}, Material::kPole);
+    if (rng_.Bernoulli(0.7)) {
+      const double len = rng_.Uniform(1.2, 2.4);
+      const Vec2 c = p + to_road * (0.5 * len);
+      const double yaw = std::atan2(to_road.y(), to_road.x());
+      Add(MakeBoxZ(c, Vec2(0.5 * len + r, 0.08), yaw, h - 0.3, h - 0.15), Material::kPole);
+    }
+  }
+
+  void Car(const Vec2& c, double length, double yaw) {
+    const double width = rng_.Uniform(1.7, 1.9);
+    if (rng_.Bernoulli(0.15)) {  // van
+      Add(MakeBoxZ(c, Vec2(0.5 * length, 0.5 * width), yaw, -kSink, rng_.Uniform(1.9, 2.3)),
+          Material::kCar);
+      return;
+    }
+    const double body_top = rng_.Uniform(0.9, 1.1);
+    Add(MakeBoxZ(c, Vec2(0.5 * length, 0.5 * width), yaw, -kSink, body_top), Material::kCar);
+    const double cabin_len = length * rng_.Uniform(0.45, 0.6);
+    const Vec2 back = -rng_.Uniform(0.1, 0.4) * Vec2(std::cos(yaw), std::sin(yaw));
+    Add(MakeBoxZ(c + back, Vec2(0.5 * cabin_len, 0.5 * width - 0.08), yaw, body_top - 0.02,
+                 body_top + rng_.Uniform(0.45, 0.6)),
+        Material::kCar);
+  }
+
+  Rng rng_;
+  Scene scene_;
+};
+
+}  // namespace
+
+LoopPath::LoopPath(const Vec2& center, const Vec2& half_extent, double corner_radius)
+    : center_(center), half_(half_extent), radius_(corner_radius) {
+  straight_x_ = 2 * (half_.x() - radius_);
+  straight_y_ = 2 * (half_.y() - radius_);
+  arc_ = 0.5 * kPi * radius_;
+  length_ = 2 * straight_x_ + 2 * straight_y_ + 4 * arc_;
+}
+
+void LoopPath::Eval(double s, Vec2* position, double* heading) const {
+  s = std::fmod(s, length_);
+  if (s < 0) s += length_;
+  const double cx = center_.x(), cy = center_.y(), a = half_.x(), b = half_.y(), r = radius_;
+  // Straights: start point and heading; arcs: centre and start angle.
+  const std::array<Vec2, 4> straight_start = {Vec2(cx - a + r, cy - b), Vec2(cx + a, cy - b + r),
+                                              Vec2(cx + a - r, cy + b), Vec2(cx - a, cy + b - r)};
+  const std::array<Vec2, 4> arc_center = {
+      Vec2(cx + a - r, cy - b + r), Vec2(cx + a - r, cy + b - r), Vec2(cx - a + r, cy + b - r),
+      Vec2(cx - a + r, cy - b + r)};
+  for (int k = 0; k < 4; ++k) {
+    const double dir = k * kPi / 2;
+    const double len = (k % 2 == 0) ? straight_x_ : straight_y_;
+    if (s <= len) {
+      *position = straight_start[k] + s * Vec2(std::cos(dir), std::sin(dir));
+      *heading = WrapAngle(dir);
+      return;
+    }
+    s -= len;
+    if (s <= arc_ || k == 3) {
+      const double theta = dir - kPi / 2 + std::min(s, arc_) / r;
+      *position = arc_center[k] + r * Vec2(std::cos(theta), std::sin(theta));
+      *heading = WrapAngle(theta + kPi / 2);
+      return;
+    }
+    s -= arc_;
+  }
+}
+
+City GenerateCity(const CityOptions& options) {
+  City city;
+  city.scene = CityBuilder(options.seed).Build();
+  const Vec2 loop_center(kBlockPitch, 0.5 * kBlockPitch);
+  const Vec2 loop_half(kBlockPitch, 0.5 * kBlockPitch);
+  // Counter-clockwise travel keeps the right-hand lane on the outside of the loop.
+  city.drive_path = LoopPath(loop_center, loop_half + Vec2::Constant(kLaneOffset),
+                             kLoopCornerRadius + kLaneOffset);
+  // Start 50 m before the first corner, so that even short runs include a turn.
+  city.start_s = 2 * (loop_half.x() - kLoopCornerRadius) - 50.0;
+
+  // Walkers: a separate random stream, so the static scene is the same with or without them.
+  Rng rng(HashSeed(options.seed, 0xAA1Cull));
+  for (int k = 0; k < options.walkers; ++k) {
+    Walker w;
+    const double lateral = rng.Uniform(kWalkerMin, kWalkerMax);
+    const bool inside = rng.Bernoulli(0.5);  // inner or outer sidewalk of the loop
+    const double offset = inside ? -lateral : lateral;
+    w.path = LoopPath(loop_center, loop_half + Vec2::Constant(offset), kLoopCornerRadius + offset);
+    w.s0 = rng.Uniform(0.0, w.path.length());
+    w.speed = rng.Uniform(0.8, 1.6) * (rng.Bernoulli(0.5) ? 1.0 : -1.0);
+    w.radius = rng.Uniform(0.22, 0.28);
+    w.height = rng.Uniform(1.6, 1.9);
+    city.walkers.push_back(w);
+  }
+  return city;
+}
+
+std::vector<Eigen::Isometry3d> CityTrajectory(const City& city, int frames, double step,
+                                              double sensor_height) {
+  std::vector<Eigen::Isometry3d> poses;
+  poses.reserve(std::max(frames, 0));
+  for (int k = 0; k < frames; ++k) {
+    Vec2 p;
+    double heading;
+    city.drive_path.Eval(city.start_s + k * step, &p, &heading);
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.linear() = Eigen::AngleAxisd(heading, Vec3::UnitZ()).toRotationMatrix();
+    pose.translation() = Vec3(p.x(), p.y(), city.scene.ground_z + sensor_height);
+    poses.push_back(pose);
+  }
+  return poses;
+}
+
+std::vector<Primitive> WalkersAt(const City& city, double t) {
+  std::vector<Primitive> out;
+  out.reserve(city.walkers.size());
+  for (const Walker& w : city.walkers) {
+    Vec2 p;
+    double heading;
+    w.path.Eval(w.s0 + w.speed * t, &p, &heading);
+    out.push_back(
+        {Cylinder{p, w.radius, city.scene.ground_z - kSink, w.height}, Material::kPerson});
+  }
+  return out;
+}
+
+}  // namespace rim::sim

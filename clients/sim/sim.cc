@@ -1,0 +1,608 @@
+#include "sim/sim.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <memory>
+#include <set>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/string_view.h"
+#include "rim/binary_io.h"
+#include "rim/mesh_io.h"
+#include "rim/status_macros.h"
+#include "sim/city.h"
+#include "sim/rng.h"
+#include "sim/room.h"
+#include "sim/scene.h"
+#include "sim/sensors.h"
+#include "sim/writers.h"
+
+namespace rim::sim {
+namespace {
+
+constexpr double kSensorHeight = 1.73;  // KITTI's Velodyne mount height
+constexpr double kCityMeshTolerance = 0.005;
+constexpr double kRoomMeshTolerance = 0.002;
+constexpr double kCityGroundCell = 2.0;
+constexpr double kCityGridCell = 4.0;
+constexpr double kRoomGridCell = 0.5;
+constexpr double kRoomFrameRateHz = 30.0;
+constexpr uint64_t kNoiseStream = 0x7015Eull;
+constexpr double kObservedVoxel = 0.01;  // gt_observed.ply: one averaged point per 1 cm voxel
+
+std::string Join(const std::string& dir, const std::string& name) {
+  if (dir.empty() || dir.back() == '/') return dir + name;
+  return dir + "/" + name;
+}
+
+int ThreadCount(const SimOptions& o) {
+  if (o.threads > 0) return o.threads;
+  return std::max(1u, std::thread::hardware_concurrency());
+}
+
+absl::Status WriteGroundTruth(const std::string& dir, const rim::Mesh& gt) {
+  return rim::WriteMeshPly(Join(dir, "gt.ply"), gt);
+}
+
+// Averages points per world-aligned voxel (the voxel of p is floor(p / size)). Points are added
+// one at a time, in a fixed order, so the result does not depend on threading. Memory stays within
+// about twice one entry per occupied voxel: the entries are sorted and merged whenever they have
+// doubled since the last merge.
+class VoxelAverager {
+ public:
+  explicit VoxelAverager(double size) : size_(size) {}
+
+  // False (and nothing added) when p is more than 2^20 voxels from the origin along an axis.
+  bool Add(const Vec3& p) {
+    Entry e;
+    e.key = 0;
+    float* offset[3] = {&e.x, &e.y, &e.z};
+    for (int a = 0; a < 3; ++a) {
+      const double index = std::floor(p[a] / size_);
+      if (!(std::abs(index) < kBias)) return false;
+      e.key = (e.key << kBits) | static_cast<uint64_t>(static_cast<int64_t>(index) + kBias);
+      *offset[a] = static_cast<float>(p[a] - index * size_);  // in [0, size)
+    }
+    e.count = 1;
+    entries_.push_back(e);
+    if (entries_.size() >= std::max<size_t>(2 * merged_, 1 << 20)) Merge();
+    return true;
+  }
+
+  // The voxel means, in voxel order (x, then y, then z index).
+  std::vector<std::array<float, 3>> Means() {
+    Merge();
+    std::vector<std::array<float, 3>> out;
+    out.reserve(entries_.size());
+    for (const Entry& e : entries_) {
+      std::array<float, 3> p;
+      const float sum[3] = {e.x, e.y, e.z};
+      for (int a = 0; a < 3; ++a) {
+        const int64_t index =
+            static_cast<int64_t>((e.key >> (kBits * (2 - a))) & ((1u << kBits) - 1)) - kBias;
+        p[a] = static_cast<float>(index * size_ + sum[a] / e.count);
+      }
+      out.push_back(p);
+    }
+    return out;
+  }
+
+ private:
+  static constexpr int kBits = 21;
+  static constexpr int64_t kBias = int64_t{1} << (kBits - 1);
+  struct Entry {
+    uint64_t key;
+    float x, y, z;  // sum of the offsets from the voxel's lower corner
+    uint32_t count;
+  };
+
+  // Sorts by voxel (stable: equal voxels are summed in the order their points came) and merges.
+  void Merge() {
+    std::stable_sort(entries_.begin(), entries_.end(),
+                     [](const Entry& a, const Entry& b) { return a.key < b.key; });
+    size_t out = 0;
+    for (size_t i = 0; i < entries_.size(); ++out) {
+      Entry sum = entries_[i];
+      for (++i; i < entries_.size() && entries_[i].key == sum.key; ++i) {
+        sum.x += entries_[i].x;
+        sum.y += entries_[i].y;
+        sum.z += entries_[i].z;
+        sum.count += entries_[i].count;
+      }
+      entries_[out] = sum;
+    }
+    entries_.resize(out);
+    entries_.shrink_to_fit();
+    merged_ = out;
+  }
+
+  double size_;
+  std::vector<Entry> entries_;
+  size_t merged_ = 0;
+};
+
+absl::Status OutOfVoxelRange(const Vec3& p) {
+  return absl::InternalError(absl::StrFormat(
+      "observed point (%.1f, %.1f, %.1f) is too far from the origin for gt_observed.ply's voxel "
+      "grid",
+      p.x(), p.y(), p.z()));
+}
+
+bool InObservedBox(const Vec3& p, const Vec3& sensor, const ObservedBox& box) {
+  return std::abs(p.x() - sensor.x()) < box.hx && std::abs(p.y() - sensor.y()) < box.hy &&
+         p.z() >= sensor.z() + box.z_min && p.z() < sensor.z() + box.z_max;
+}
+
+absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
+  SimSummary summary;
+  const double step = o.step > 0 ? o.step : 1.0;
+  const int threads = ThreadCount(o);
+  LidarModel lidar;
+  lidar.columns = o.columns;
+  const double margin = o.gt_margin >= 0 ? o.gt_margin : lidar.max_range;
+
+  CityOptions city_options;
+  city_options.seed = o.seed;
+  city_options.walkers = o.walkers;
+  const City city = GenerateCity(city_options);
+  const std::vector<Eigen::Isometry3d> poses = CityTrajectory(city, o.frames, step, kSensorHeight);
+
+  Vec2 lo = Vec2::Constant(1e300), hi = Vec2::Constant(-1e300);
+  for (const auto& p : poses) {
+    lo = lo.cwiseMin(p.translation().head<2>());
+    hi = hi.cwiseMax(p.translation().head<2>());
+  }
+  GroundTruthOptions gt_options;
+  gt_options.tessellation.tolerance = kCityMeshTolerance;
+  gt_options.ground_cell = kCityGroundCell;
+  gt_options.region_min = lo - Vec2::Constant(margin);
+  gt_options.region_max = hi + Vec2::Constant(margin);
+  const rim::Mesh gt = BuildGroundTruthMesh(city.scene, gt_options);
+  summary.gt_vertices = gt.vertices.size();
+  summary.gt_faces = gt.faces.size();
+
+  const std::string velodyne = Join(o.out_dir, "velodyne");
+  RIM_RETURN_IF_ERROR(rim::MakeDirs(o.out_dir));
+  RIM_RETURN_IF_ERROR(RemovePreviousOutput(o.out_dir));
+  RIM_RETURN_IF_ERROR(rim::MakeDirs(velodyne));
+
+  std::unique_ptr<RayCaster> static_caster;
+  if (city.walkers.empty()) static_caster = std::make_unique<RayCaster>(city.scene, kCityGridCell);
+  // The frame scenes list the static primitives first, then the walkers.
+  const int num_static = static_cast<int>(city.scene.primitives.size());
+  VoxelAverager observed(kObservedVoxel);
+  std::vector<SensorTruth> truth;
+  for (int k = 0; k < o.frames; ++k) {
+    NoiseOptions noise{o.noise, HashSeed(o.seed, static_cast<uint64_t>(k), kNoiseStream)};
+    std::vector<LidarPoint> points;
+    if (static_caster) {
+      points = SimulateLidarScan(*static_caster, poses[k], lidar, noise, threads, &truth);
+    } else {
+      Scene frame_scene = city.scene;
+      for (Primitive& w : WalkersAt(city, k / kFrameRateHz)) frame_scene.primitives.push_back(w);
+      const RayCaster caster(frame_scene, kCityGridCell);
+      points = SimulateLidarScan(caster, poses[k], lidar, noise, threads, &truth);
+    }
+    summary.points += points.size();
+    RIM_RETURN_IF_ERROR(WriteKittiScan(Join(velodyne, absl::StrFormat("%06d.bin", k)), points));
+    // The observed surface: noise-free hits on static geometry inside the frame's mapping box.
+    const Vec3 sensor = poses[k].translation();
+    for (const SensorTruth& t : truth) {
+      if (t.primitive >= num_static || !InObservedBox(t.world, sensor, o.observed_box)) continue;
+      if (!observed.Add(t.world)) return OutOfVoxelRange(t.world);
+    }
+  }
+  const std::vector<std::array<float, 3>> observed_points = observed.Means();
+  summary.observed_points = observed_points.size();
+  RIM_RETURN_IF_ERROR(WriteKittiPoses(Join(o.out_dir, "poses.txt"), poses));
+  RIM_RETURN_IF_ERROR(WriteKittiCalib(Join(o.out_dir, "calib.txt")));
+  RIM_RETURN_IF_ERROR(WriteKittiTimes(Join(o.out_dir, "times.txt"), o.frames, kFrameRateHz));
+  RIM_RETURN_IF_ERROR(WriteGroundTruth(o.out_dir, gt));
+  RIM_RETURN_IF_ERROR(WritePointCloudPly(Join(o.out_dir, "gt_observed.ply"), observed_points));
+
+  const std::string json = absl::StrFormat(
+      R"({
+  "generator": "rim_sim",
+  "scene": "city",
+  "layout": "kitti",
+  "seed": %d,
+  "frames": %d,
+  "step_m": %.6g,
+  "frame_rate_hz": %.6g,
+  "noise_stddev_m": %.6g,
+  "walkers": %d,
+  "lidar": {
+    "beams": %d,
+    "columns": %d,
+    "elevation_max_deg": %.6g,
+    "elevation_min_deg": %.6g,
+    "min_range_m": %.6g,
+    "max_range_m": %.6g,
+    "sensor_height_m": %.6g,
+    "frame": "x forward, y left, z up"
+  },
+  "poses": "world_from_lidar, world = gt.ply frame; calib Tr is identity",
+  "gt_mesh": {
+    "file": "gt.ply",
+    "region_min_xy": [%.3f, %.3f],
+    "region_max_xy": [%.3f, %.3f],
+    "tolerance_m": %.6g,
+    "vertices": %d,
+    "faces": %d,
+    "includes_walkers": false
+  },
+  "gt_observed": {
+    "file": "gt_observed.ply",
+    "kind": "points",
+    "points": %d,
+    "voxel_m": %.6g,
+    "box": {"hx_m": %.6g, "hy_m": %.6g, "z_min_m": %.6g, "z_max_m": %.6g,
+            "about": "each frame's sensor position, world axes"},
+    "noise_free": true,
+    "includes_walkers": false
+  }
+}
+)",
+      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, lidar.beams, lidar.columns,
+      lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
+      gt_options.region_min.x(), gt_options.region_min.y(), gt_options.region_max.x(),
+      gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(), gt.faces.size(),
+      observed_points.size(), kObservedVoxel, o.observed_box.hx, o.observed_box.hy,
+      o.observed_box.z_min, o.observed_box.z_max);
+  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
+
+  const std::string readme = absl::StrFormat(
+      R"(Synthetic LiDAR sequence written by rim_sim (scene "city", seed %d).
+
+Layout: KITTI odometry.
+  velodyne/NNNNNN.bin  float32 x, y, z, intensity per point, little-endian, in the LiDAR frame
+                       (x forward, y left, z up). Each scan is one full revolution taken from the
+                       frame's pose (motion-compensated; no rolling-shutter skew). Points are
+                       ring by ring (ring 0 = +%.3g deg), azimuth counter-clockwise from +x.
+  poses.txt            one line per frame: the top 3x4 of world_from_sensor, row-major. The world
+                       frame is the frame of gt.ply (z up, ground at z = 0); the first pose is not
+                       the identity.
+  calib.txt            P0..P3 copied from KITTI (unused) and Tr = identity, so the "camera" poses
+                       of poses.txt are the LiDAR poses themselves (Tr^-1 P Tr = P).
+  times.txt            timestamps in seconds, %.6g Hz.
+  gt.ply               ground-truth surface of the static scene (no walkers), binary PLY, world
+                       frame, cut to the drive's bounds grown by %.6g m. Curved surfaces are
+                       inscribed polyhedra within %.6g m of the true shape; footprints of solids
+                       are cut out of the ground and of roofs, and faces inside solids are dropped.
+  gt_observed.ply      the surface the LiDAR actually saw, as a point cloud (binary PLY, float
+                       x, y, z, world frame, no faces): every return's noise-free hit on the static
+                       scene (walkers left out, even with range noise) that lies in its frame's
+                       local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
+                       sz %+.6g <= z < sz %+.6g m about the sensor position (sx, sy, sz), world
+                       axes; all frames merged and averaged per %.6g m world-aligned voxel.
+  scene.json           the generation parameters.
+
+Sensor: %d beams evenly spaced from +%.3g to %.3g deg, %d columns, range %.3g..%.3g m,
+mounted %.3g m above the ground. Range noise: Gaussian, stddev %.6g m, added along each ray.
+Drive: %d frames, %.6g m apart, counter-clockwise round a 2 x 1 ring of 80 m blocks in the
+right-hand lane. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
+only, not in gt.ply).
+)",
+      o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, o.observed_box.hx,
+      o.observed_box.hy, o.observed_box.z_min, o.observed_box.z_max, kObservedVoxel, lidar.beams,
+      lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
+      kSensorHeight, o.noise, o.frames, step, o.walkers);
+  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
+  summary.frames = o.frames;
+  return summary;
+}
+
+absl::StatusOr<SimSummary> RunRoom(const SimOptions& o) {
+  SimSummary summary;
+  const double step = o.step > 0 ? o.step : 0.1;
+  const int threads = ThreadCount(o);
+  const PinholeCamera camera;
+  const Room room = GenerateRoom(o.seed);
+  const std::vector<Eigen::Isometry3d> poses = RoomTrajectory(room, o.frames, step);
+  GroundTruthOptions gt_options;
+  gt_options.tessellation.tolerance = kRoomMeshTolerance;
+  const rim::Mesh gt = BuildGroundTruthMesh(room.scene, gt_options);
+  summary.gt_vertices = gt.vertices.size();
+  summary.gt_faces = gt.faces.size();
+
+  RIM_RETURN_IF_ERROR(rim::MakeDirs(o.out_dir));
+  RIM_RETURN_IF_ERROR(RemovePreviousOutput(o.out_dir));
+  const RayCaster caster(room.scene, kRoomGridCell);
+  VoxelAverager observed(kObservedVoxel);
+  std::vector<SensorTruth> truth;
+  for (int k = 0; k < o.frames; ++k) {
+    NoiseOptions noise{o.noise, HashSeed(o.seed, static_cast<uint64_t>(k), kNoiseStream)};
+    const std::vector<uint16_t> mm =
+        DepthToMillimetres(RenderDepth(caster, poses[k], camera, noise, threads, &truth));
+    // The room has no moving parts and no mapping box: every noise-free hit was observed.
+    for (const SensorTruth& t : truth) {
+      if (!observed.Add(t.world)) return OutOfVoxelRange(t.world);
+    }
+    for (uint16_t v : mm) summary.points += v != 0;
+    const std::string stem = Join(o.out_dir, absl::StrFormat("frame-%06d", k));
+    RIM_RETURN_IF_ERROR(WritePng16(stem + ".depth.png", camera.width, camera.height, mm));
+    RIM_RETURN_IF_ERROR(WritePoseMatrix(stem + ".pose.txt", poses[k]));
+  }
+  RIM_RETURN_IF_ERROR(WriteIntrinsics(Join(o.out_dir, "camera-intrinsics.txt"), camera));
+  RIM_RETURN_IF_ERROR(WriteGroundTruth(o.out_dir, gt));
+  const std::vector<std::array<float, 3>> observed_points = observed.Means();
+  summary.observed_points = observed_points.size();
+  RIM_RETURN_IF_ERROR(WritePointCloudPly(Join(o.out_dir, "gt_observed.ply"), observed_points));
+
+  const std::string json = absl::StrFormat(
+      R"({
+  "generator": "rim_sim",
+  "scene": "room",
+  "layout": "7scenes",
+  "seed": %d,
+  "frames": %d,
+  "step_m": %.6g,
+  "frame_rate_hz": %.6g,
+  "noise_stddev_m": %.6g,
+  "room_size_m": [%.4f, %.4f, %.4f],
+  "camera": {
+    "width": %d,
+    "height": %d,
+    "fx": %.6g,
+    "fy": %.6g,
+    "cx": %.6g,
+    "cy": %.6g,
+    "min_depth_m": %.6g,
+    "max_depth_m": %.6g,
+    "depth": "uint16 millimetres along the optical axis, 0 = no return",
+    "frame": "x right, y down, z forward"
+  },
+  "poses": "camera_to_world, world = gt.ply frame",
+  "gt_mesh": {
+    "file": "gt.ply",
+    "tolerance_m": %.6g,
+    "vertices": %d,
+    "faces": %d
+  },
+  "gt_observed": {
+    "file": "gt_observed.ply",
+    "kind": "points",
+    "points": %d,
+    "voxel_m": %.6g,
+    "box": null,
+    "noise_free": true
+  }
+}
+)",
+      o.seed, o.frames, step, kRoomFrameRateHz, o.noise, room.size.x(), room.size.y(),
+      room.size.z(), camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+      camera.min_depth, camera.max_depth, kRoomMeshTolerance, gt.vertices.size(), gt.faces.size(),
+      observed_points.size(), kObservedVoxel);
+  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
+
+  const std::string readme = absl::StrFormat(
+      R"(Synthetic depth sequence written by rim_sim (scene "room", seed %d).
+
+Layout: 7-Scenes / 3DMatch.
+  frame-NNNNNN.depth.png  16-bit grayscale PNG, depth along the optical axis in millimetres,
+                          0 = no return. Pixel (u, v) looks along ((u-cx)/fx, (v-cy)/fy, 1).
+  frame-NNNNNN.pose.txt   4x4 camera-to-world matrix, one row per line. Camera frame: x right,
+                          y down, z forward. World frame: that of gt.ply (z up, floor at z = 0,
+                          room centred on the origin).
+  camera-intrinsics.txt   the 3x3 K: fx = %.6g, fy = %.6g, cx = %.6g, cy = %.6g (%dx%d image).
+  gt.ply                  ground-truth surface (walls, floor, ceiling, furniture), binary PLY.
+                          Curved surfaces are within %.6g m of the true shape.
+  gt_observed.ply         the surface the camera actually saw, as a point cloud (binary PLY,
+                          float x, y, z, world frame, no faces): the noise-free hit of every pixel
+                          with a depth in every frame, averaged per %.6g m world-aligned voxel.
+  scene.json              the generation parameters.
+
+Room %.2f x %.2f x %.2f m. Camera: %d frames about %.6g m apart on an ellipse round the room,
+looking inward and slightly down. Depth noise: Gaussian, stddev %.6g m.
+)",
+      o.seed, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
+      kRoomMeshTolerance, kObservedVoxel, room.size.x(), room.size.y(), room.size.z(), o.frames,
+      step, o.noise);
+  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
+  summary.frames = o.frames;
+  return summary;
+}
+
+// Flag value parsing with messages that name the flag and echo the value.
+absl::Status BadValue(absl::string_view flag, absl::string_view value, absl::string_view want) {
+  return absl::InvalidArgumentError(absl::StrCat(flag, " must be ", want, ", got '", value, "'"));
+}
+
+absl::Status ParseInt(absl::string_view flag, absl::string_view value, int lo, int hi, int* out,
+                      absl::string_view want) {
+  int v;
+  if (!absl::SimpleAtoi(value, &v) || v < lo || v > hi) return BadValue(flag, value, want);
+  *out = v;
+  return absl::OkStatus();
+}
+
+absl::Status ParseDouble(absl::string_view flag, absl::string_view value, double lo, double hi,
+                         bool lo_inclusive, double* out, absl::string_view want) {
+  double v;
+  if (!absl::SimpleAtod(value, &v) || !std::isfinite(v) || v > hi || v < lo ||
+      (!lo_inclusive && v == lo)) {
+    return BadValue(flag, value, want);
+  }
+  *out = v;
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+std::string SimUsage() {
+  return R"(usage: rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
+                [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX]
+                [--threads T]
+       rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
+
+Writes a synthetic dataset with its ground-truth mesh (gt.ply) and the observed surface
+(gt_observed.ply: the noise-free hits on the static scene, averaged per 1 cm voxel, as a point
+cloud without faces):
+  city  procedural streets, buildings, trees, poles and parked cars scanned by a 64-beam spinning
+        LiDAR driving round the block; KITTI layout (velodyne/, poses.txt, calib.txt, times.txt).
+  room  a furnished room seen by a 320x240 depth camera; 7-Scenes layout (frame-NNNNNN.depth.png,
+        frame-NNNNNN.pose.txt, camera-intrinsics.txt).
+
+  --scene city|room  scene to generate (default city)
+  --out DIR          output folder, created if missing (required)
+  --frames N         number of frames, >= 1 (default 100)
+  --noise M          Gaussian range/depth noise, standard deviation in metres (default 0)
+  --walkers K        city: pedestrians walking along the sidewalks, in the scans only (default 0)
+  --seed S           scene seed, a non-negative integer (default 1)
+  --step M           metres travelled per frame (default 1 for city, 0.1 for room)
+  --columns C        city: LiDAR columns per revolution (default 1800)
+  --gt-margin M      city: gt.ply covers the drive's extent grown by M metres (default 80, the
+                     LiDAR's range)
+  --observed-box HX,HY,ZMIN,ZMAX
+                     city: gt_observed.ply keeps of each frame only the hits with |x - sx| < HX,
+                     |y - sy| < HY and sz + ZMIN <= z < sz + ZMAX about the sensor position
+                     (sx, sy, sz), world axes: the local mapping box (default 10,10,-3,3)
+  --threads T        worker threads (default: all cores); the output does not depend on it
+
+Files that an earlier rim_sim run left in DIR (frames, index files, gt.ply, gt_observed.ply) are
+replaced or
+removed; nothing else in DIR is touched.
+)";
+}
+
+absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool* help) {
+  SimOptions o;
+  *help = false;
+  std::set<std::string> given;
+  bool have_out = false;
+  for (int i = 1; i < argc; ++i) {
+    std::string arg = argv[i];
+    if (arg == "--help" || arg == "-h") {
+      *help = true;
+      return o;
+    }
+    if (arg.rfind("--", 0) != 0) {
+      return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
+    }
+    std::string value;
+    const size_t eq = arg.find('=');
+    if (eq != std::string::npos) {
+      value = arg.substr(eq + 1);
+      arg = arg.substr(0, eq);
+    } else {
+      static const std::set<std::string> kKnown = {
+          "--scene", "--out",     "--frames",    "--noise",        "--walkers",
+          "--seed",  "--step",    "--columns",   "--gt-margin",    "--observed-box",
+          "--threads"};
+      if (kKnown.count(arg) == 0) {
+        return absl::InvalidArgumentError(absl::StrCat("unknown flag '", arg, "'"));
+      }
+      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(arg, " needs a value"));
+      value = argv[++i];
+    }
+    if (!given.insert(arg).second) {
+      return absl::InvalidArgumentError(absl::StrCat(arg, " given more than once"));
+    }
+    if (arg == "--scene") {
+      if (value == "city") {
+        o.scene = SceneKind::kCity;
+      } else if (value == "room") {
+        o.scene = SceneKind::kRoom;
+      } else {
+        return absl::InvalidArgumentError(
+            absl::StrCat("unknown --scene '", value, "' (expected city or room)"));
+      }
+    } else if (arg == "--out") {
+      if (value.empty()) return BadValue(arg, value, "a folder path");
+      o.out_dir = value;
+      have_out = true;
+    } else if (arg == "--frames") {
+      RIM_RETURN_IF_ERROR(
+          ParseInt(arg, value, 1, 1000000, &o.frames, "an integer in [1, 1000000]"));
+    } else if (arg == "--noise") {
+      RIM_RETURN_IF_ERROR(
+          ParseDouble(arg, value, 0.0, 10.0, true, &o.noise, "a standard deviation in [0, 10] m"));
+    } else if (arg == "--walkers") {
+      RIM_RETURN_IF_ERROR(ParseInt(arg, value, 0, 10000, &o.walkers, "an integer in [0, 10000]"));
+    } else if (arg == "--seed") {
+      if (!absl::SimpleAtoi(value, &o.seed) || value.empty() || value[0] == '-') {
+        return BadValue(arg, value, "a non-negative integer");
+      }
+    } else if (arg == "--step") {
+      RIM_RETURN_IF_ERROR(ParseDouble(arg, value, 0.0, 100.0, false, &o.step, "in (0, 100] m"));
+    } else if (arg == "--columns") {
+      RIM_RETURN_IF_ERROR(ParseInt(arg, value, 16, 36000, &o.columns, "an integer in [16, 36000]"));
+    } else if (arg == "--gt-margin") {
+      RIM_RETURN_IF_ERROR(
+          ParseDouble(arg, value, 0.0, 10000.0, true, &o.gt_margin, "in [0, 10000] m"));
+    } else if (arg == "--observed-box") {
+      const std::vector<std::string> parts = absl::StrSplit(value, ',');
+      double v[4];
+      bool ok = parts.size() == 4;
+      for (size_t i = 0; ok && i < 4; ++i) {
+        ok = absl::SimpleAtod(parts[i], &v[i]) && std::isfinite(v[i]) && std::abs(v[i]) <= 1e4;
+      }
+      if (!ok || !(v[0] > 0) || !(v[1] > 0) || !(v[2] < v[3])) {
+        return BadValue(arg, value,
+                        "HX,HY,ZMIN,ZMAX in metres with HX, HY > 0 and ZMIN < ZMAX (|each| <= "
+                        "10000)");
+      }
+      o.observed_box = {v[0], v[1], v[2], v[3]};
+    } else if (arg == "--threads") {
+      RIM_RETURN_IF_ERROR(ParseInt(arg, value, 1, 256, &o.threads, "an integer in [1, 256]"));
+    } else {
+      return absl::InvalidArgumentError(absl::StrCat("unknown flag '", arg, "'"));
+    }
+  }
+  if (!have_out) return absl::InvalidArgumentError("--out DIR is required");
+  if (o.scene == SceneKind::kRoom) {
+    for (const char* city_only : {"--walkers", "--columns", "--gt-margin", "--observed-box"}) {
+      if (given.count(city_only)) {
+        return absl::InvalidArgumentError(absl::StrCat(city_only, " only applies to --scene city"));
+      }
+    }
+  }
+  return o;
+}
+
+absl::StatusOr<SimSummary> RunSim(const SimOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  absl::StatusOr<SimSummary> summary =
+      options.scene == SceneKind::kCity ? RunCity(options) : RunRoom(options);
+  if (summary.ok()) {
+    summary->seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  return summary;
+}
+
+int RunSimCli(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
+  bool help = false;
+  absl::StatusOr<SimOptions> options = ParseSimArgs(argc, argv, &help);
+  if (help) {
+    out << SimUsage();
+    return 0;
+  }
+  if (!options.ok()) {
+    err << "rim_sim: error: " << options.status().message() << "\n"
+        << "run 'rim_sim --help' for usage\n";
+    return 2;
+  }
+  absl::StatusOr<SimSummary> summary = RunSim(*options);
+  if (!summary.ok()) {
+    err << "rim_sim: error: " << summary.status().message() << "\n";
+    return 1;
+  }
+  const bool city = options->scene == SceneKind::kCity;
+  out << absl::StrFormat(
+      "rim_sim: wrote %d %s frames (%d %s), gt.ply (%d vertices, %d faces) and gt_observed.ply "
+      "(%d points) to %s in %.2f s\n",
+      summary->frames, city ? "LiDAR" : "depth", summary->points, city ? "points" : "valid pixels",
+      summary->gt_vertices, summary->gt_faces, summary->observed_points, options->out_dir,
+      summary->seconds);
+  return 0;
+}
+
+}  // namespace rim::sim

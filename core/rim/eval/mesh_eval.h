@@ -1,0 +1,78 @@
+// Mesh accuracy against a ground-truth mesh (DESIGN.md §4.3), following the protocol of
+// SHINE-Mapping's eval_mesh:
+//  1. crop the prediction to the GT bounding box (padded by crop_margin_m),
+//  2. sample points uniformly by area on each mesh,
+//  3. voxel-average them (points in one voxel are replaced by their mean),
+//  4. take nearest-neighbour distances both ways (exact, k-d tree),
+//  5. drop prediction→GT distances >= drop_m, cap GT→prediction distances at cap_m,
+//  6. precision / recall / F-score at fscore_m.
+// The "strict" metrics repeat 5–6 without the drop and the cap, so that floaters count.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "rim/mesh.h"
+
+namespace rim::eval {
+
+struct EvalOptions {
+  // Points sampled on each mesh (after cropping), before voxel averaging. The count is "about":
+  // each triangle gets floor(samples * area / total_area + u), u uniform in [0, 1).
+  int64_t samples = 10'000'000;
+  double voxel_m = 0.01;   // voxel-averaging size; 0 disables averaging
+  double drop_m = 0.2;     // standard metrics ignore prediction points at least this far from GT
+  double cap_m = 2.0;      // standard metrics count GT points farther than this at cap_m
+  double fscore_m = 0.1;   // inlier threshold of precision, recall and F-score
+  uint64_t seed = 1;       // the prediction is sampled with `seed`, the GT with another stream
+  int threads = 2;         // results do not depend on the thread count
+  bool crop_to_gt = true;  // step 1
+  // Padding of the GT box on every side. A flat GT (a ground plane) has a box of zero height, and
+  // a prediction point more than drop_m outside the box is more than drop_m from every GT point,
+  // so padding by drop_m leaves the standard metrics as they would be without the crop.
+  // (SHINE-Mapping pads only z, by its voxel size, and keeps only the triangles wholly inside;
+  // here triangles are clipped exactly.)
+  double crop_margin_m = 0.2;
+};
+
+// Fractions are in [0, 1]; distances in metres.
+struct Metrics {
+  double accuracy_m = 0;  // mean prediction→GT distance (NaN when no prediction point is kept)
+  double completeness_m = 0;  // mean GT→prediction distance
+  double chamfer_l1_m = 0;    // (accuracy + completeness) / 2
+  double precision = 0;       // prediction points (kept) closer than fscore_m to GT
+  double recall = 0;          // GT points closer than fscore_m to the prediction
+  double fscore = 0;          // 2PR / (P + R), 0 when P + R = 0
+};
+
+struct EvalResult {
+  Metrics standard;         // with the drop and the cap (the paper's numbers)
+  Metrics strict;           // without them
+  double pred_area_m2 = 0;  // after cropping
+  double gt_area_m2 = 0;
+  int64_t pred_samples = 0;  // sampled, before voxel averaging
+  int64_t gt_samples = 0;
+  int64_t pred_points = 0;  // after voxel averaging: the points the metrics are over
+  int64_t gt_points = 0;
+  int64_t pred_dropped = 0;  // prediction points left out of the standard metrics
+  int64_t gt_capped = 0;     // GT points whose distance the standard metrics cap
+};
+
+// Checks every field, naming the bad one.
+absl::Status ValidateEvalOptions(const EvalOptions& options);
+
+// Evaluates `pred` against `gt`. Errors (InvalidArgument) for bad options, face indices out of
+// range, non-finite vertices, a GT without area, and a prediction without area inside the padded
+// GT box: an empty prediction has no defined accuracy, and a script must not mistake it for a
+// number.
+absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
+                                          const EvalOptions& options);
+
+// The cropping of step 1, exposed for tests: triangles are clipped exactly to the box [lower,
+// upper] (a triangle across a face keeps only its part inside), returned as a triangle soup.
+Mesh CropMeshToBox(const Mesh& mesh, const std::array<float, 3>& lower,
+                   const std::array<float, 3>& upper);
+
+}  // namespace rim::eval

@@ -1,0 +1,464 @@
+#include "rim/eval/mesh_eval.h"
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "rim/eval/kd_tree.h"
+#include "rim/mesh_io.h"
+
+namespace rim::eval {
+namespace {
+
+// An axis-aligned rectangle split into n x n quads. `axis` is its normal (0 = x, 1 = y, 2 = z),
+// `offset` its coordinate along the normal, [a0, a1] x [b0, b1] its extent in the other two.
+Mesh Rectangle(int axis, float offset, float a0, float a1, float b0, float b1, int n = 8) {
+  Mesh mesh;
+  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  for (int i = 0; i <= n; ++i) {
+    for (int j = 0; j <= n; ++j) {
+      std::array<float, 3> p;
+      p[axis] = offset;
+      p[u] = a0 + (a1 - a0) * i / n;
+      p[v] = b0 + (b1 - b0) * j / n;
+      mesh.vertices.push_back(p);
+    }
+  }
+  for (uint32_t i = 0; i < static_cast<uint32_t>(n); ++i) {
+    for (uint32_t j = 0; j < static_cast<uint32_t>(n); ++j) {
+      const uint32_t k = i * (n + 1) + j;
+      mesh.faces.push_back({k, k + static_cast<uint32_t>(n) + 1, k + 1});
+      mesh.faces.push_back(
+          {k + 1, k + static_cast<uint32_t>(n) + 1, k + static_cast<uint32_t>(n) + 2});
+    }
+  }
+  return mesh;
+}
+
+Mesh PlaneZ(float z, float x0, float x1, float y0, float y1) {
+  return Rectangle(2, z, x0, x1, y0, y1);
+}
+
+// The six faces of the cube [-h, h]^3.
+Mesh CubeSurface(float h) {
+  Mesh mesh;
+  for (int axis = 0; axis < 3; ++axis) {
+    for (float side : {-h, h}) AppendMesh(Rectangle(axis, side, -h, h, -h, h), &mesh);
+  }
+  return mesh;
+}
+
+Mesh Merged(const Mesh& a, const Mesh& b) {
+  Mesh out = a;
+  AppendMesh(b, &out);
+  return out;
+}
+
+EvalOptions SmallOptions(int64_t samples = 200'000) {
+  EvalOptions options;
+  options.samples = samples;
+  options.threads = 2;
+  return options;
+}
+
+double Area(const Mesh& mesh) {
+  double area = 0;
+  for (const auto& f : mesh.faces) {
+    const auto& a = mesh.vertices[f[0]];
+    const auto& b = mesh.vertices[f[1]];
+    const auto& c = mesh.vertices[f[2]];
+    const double ux = b[0] - a[0], uy = b[1] - a[1], uz = b[2] - a[2];
+    const double vx = c[0] - a[0], vy = c[1] - a[1], vz = c[2] - a[2];
+    area += 0.5 * std::sqrt(std::pow(uy * vz - uz * vy, 2) + std::pow(uz * vx - ux * vz, 2) +
+                            std::pow(ux * vy - uy * vx, 2));
+  }
+  return area;
+}
+
+TEST(KdTreeTest, MatchesBruteForce) {
+  std::mt19937 rng(7);
+  std::normal_distribution<float> cluster(0.0f, 0.05f);
+  std::uniform_real_distribution<float> centre(-2.0f, 2.0f);
+  std::vector<Point3f> points;
+  // Clusters with duplicates and ties, plus a flat sheet: the shapes that break split logic.
+  for (int c = 0; c < 40; ++c) {
+    const Point3f m = {centre(rng), centre(rng), centre(rng)};
+    for (int i = 0; i < 200; ++i)
+      points.push_back({m[0] + cluster(rng), m[1] + cluster(rng), m[2]});
+    for (int i = 0; i < 20; ++i) points.push_back(m);
+  }
+  for (int i = 0; i < 3000; ++i) points.push_back({centre(rng), centre(rng), 0.5f});
+  std::vector<Point3f> queries;
+  for (int i = 0; i < 3000; ++i) queries.push_back({2 * centre(rng), 2 * centre(rng), centre(rng)});
+  queries.insert(queries.end(), points.begin(), points.begin() + 500);
+
+  for (int n : {1, 5, 8, 9, 100, static_cast<int>(points.size())}) {
+    std::vector<Point3f> subset(points.begin(), points.begin() + n);
+    const KdTree tree(subset, /*threads=*/3);
+    const std::vector<float> fast = tree.NearestDistances(queries, 2);
+    for (size_t q = 0; q < queries.size(); ++q) {
+      float best = INFINITY;
+      for (const Point3f& p : subset) {
+        const float dx = p[0] - queries[q][0], dy = p[1] - queries[q][1], dz = p[2] - queries[q][2];
+        best = std::min(best, dx * dx + dy * dy + dz * dz);
+      }
+      ASSERT_EQ(fast[q], std::sqrt(best)) << "n=" << n << " query " << q;
+    }
+  }
+  EXPECT_EQ(KdTree({}, 1).NearestSquaredDistance({0, 0, 0}), INFINITY);
+}
+
+TEST(MeshEvalTest, MeshAgainstItselfIsNearZero) {
+  const Mesh cube = CubeSurface(0.1f);  // 0.24 m^2: ~80 samples per 1 cm voxel
+  const auto r = EvaluateMeshes(cube, cube, SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_LT(r->standard.accuracy_m, 0.001);
+  EXPECT_LT(r->standard.completeness_m, 0.001);
+  EXPECT_LT(r->strict.chamfer_l1_m, 0.001);
+  EXPECT_EQ(r->standard.fscore, 1.0);
+  EXPECT_EQ(r->strict.fscore, 1.0);
+  EXPECT_EQ(r->pred_dropped, 0);
+  EXPECT_NEAR(r->gt_area_m2, 0.24, 1e-5);
+  // About `samples` points before averaging, at most one per occupied voxel after.
+  EXPECT_NEAR(r->pred_samples, 200'000, 2'000);
+  EXPECT_LT(r->pred_points, 0.3 * 200'000);
+}
+
+TEST(MeshEvalTest, PlaneShiftedBy3cm) {
+  const auto r = EvaluateMeshes(PlaneZ(0.03f, 0, 2, 0, 2), PlaneZ(0, 0, 2, 0, 2), SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->standard.accuracy_m, 0.03, 0.002);
+  EXPECT_NEAR(r->standard.completeness_m, 0.03, 0.002);
+  EXPECT_NEAR(r->standard.chamfer_l1_m, 0.03, 0.002);
+  EXPECT_EQ(r->standard.fscore, 1.0);
+  EXPECT_EQ(r->strict.accuracy_m, r->standard.accuracy_m);  // nothing dropped or capped
+  EXPECT_EQ(r->strict.completeness_m, r->standard.completeness_m);
+}
+
+TEST(MeshEvalTest, PlaneShiftedBy15cm) {
+  const auto r = EvaluateMeshes(PlaneZ(0.15f, 0, 2, 0, 2), PlaneZ(0, 0, 2, 0, 2), SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->standard.accuracy_m, 0.15, 0.002);  // below the 20 cm drop: kept
+  EXPECT_NEAR(r->standard.completeness_m, 0.15, 0.002);
+  EXPECT_EQ(r->standard.precision, 0.0);
+  EXPECT_EQ(r->standard.recall, 0.0);
+  EXPECT_EQ(r->standard.fscore, 0.0);
+  EXPECT_EQ(r->pred_dropped, 0);
+}
+
+TEST(MeshEvalTest, PlaneShiftedBeyondTheDropHasNoStandardAccuracy) {
+  // Every prediction point is dropped: accuracy is undefined (NaN), precision and F-score 0.
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;
+  const auto r = EvaluateMeshes(PlaneZ(0.5f, 0, 2, 0, 2), PlaneZ(0, 0, 2, 0, 2), options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_TRUE(std::isnan(r->standard.accuracy_m));
+  EXPECT_EQ(r->standard.fscore, 0.0);
+  EXPECT_NEAR(r->strict.accuracy_m, 0.5, 0.002);
+  EXPECT_EQ(r->pred_dropped, r->pred_points);
+}
+
+TEST(MeshEvalTest, FarFloaterIsDroppedByStandardAndCountedByStrict) {
+  const Mesh gt = CubeSurface(5.0f);  // 600 m^2
+  // A 2 m x 2 m floater at the cube centre: 4 to 5 m from every face.
+  const Mesh pred = Merged(gt, PlaneZ(0, -1, 1, -1, 1));
+  const auto r = EvaluateMeshes(pred, gt, SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  const double floater = static_cast<double>(r->pred_dropped) / r->pred_points;
+  EXPECT_NEAR(floater, 4.0 / 604.0, 0.002);
+  EXPECT_GT(r->standard.precision, 0.999);
+  EXPECT_LT(r->standard.accuracy_m, 0.03);  // sampling spacing only (~330 points per m^2)
+  // Strict: the floater points count at 4 to 5 m each.
+  const double rest = (1 - floater) * r->standard.accuracy_m;
+  EXPECT_GT(r->strict.accuracy_m, rest + 4.0 * floater);
+  EXPECT_LT(r->strict.accuracy_m, rest + 5.0 * floater);
+  EXPECT_NEAR(r->strict.precision, r->standard.precision * (1 - floater), 1e-9);
+  EXPECT_LT(r->strict.fscore, r->standard.fscore);
+  // The GT side does not see the floater.
+  EXPECT_EQ(r->strict.completeness_m, r->standard.completeness_m);
+  EXPECT_EQ(r->strict.recall, r->standard.recall);
+}
+
+TEST(MeshEvalTest, MissingHalfLowersRecallAndCapsCompleteness) {
+  const Mesh gt = PlaneZ(0, 0, 10, 0, 1);
+  const Mesh pred = PlaneZ(0, 0, 5, 0, 1);
+  const auto r = EvaluateMeshes(pred, gt, SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  // GT points with x < 5.1 are inliers.
+  EXPECT_NEAR(r->standard.recall, 0.51, 0.01);
+  EXPECT_EQ(r->standard.precision, 1.0);
+  // A GT point at x > 5 is x - 5 away. Capped at 2 m: (∫0..2 t dt + 3 * 2) / 10 = 0.8 m.
+  EXPECT_NEAR(r->standard.completeness_m, 0.8, 0.01);
+  // Strict: ∫0..5 t dt / 10 = 1.25 m.
+  EXPECT_NEAR(r->strict.completeness_m, 1.25, 0.01);
+  EXPECT_NEAR(static_cast<double>(r->gt_capped) / r->gt_points, 0.3, 0.01);
+  EXPECT_LT(r->standard.accuracy_m, 0.006);  // 2 to 4 samples per voxel: in-plane jitter
+}
+
+TEST(MeshEvalTest, PredictionOutsideTheGtBoxIsCropped) {
+  const Mesh gt = PlaneZ(0, 0, 2, 0, 2);
+  const Mesh pred = PlaneZ(0.03f, 0, 2, 0, 2);
+  // 3 m above the GT box (padded by 20 cm), and 3 m beside it.
+  const Mesh outside = Merged(PlaneZ(3.0f, 0, 2, 0, 2), PlaneZ(0, 5, 7, 0, 2));
+  const auto plain = EvaluateMeshes(pred, gt, SmallOptions());
+  const auto cropped = EvaluateMeshes(Merged(pred, outside), gt, SmallOptions());
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  ASSERT_TRUE(cropped.ok()) << cropped.status();
+  // The crop leaves exactly the triangles of `pred`, so the samples are identical.
+  EXPECT_EQ(cropped->pred_samples, plain->pred_samples);
+  EXPECT_EQ(cropped->strict.accuracy_m, plain->strict.accuracy_m);
+  EXPECT_EQ(cropped->strict.fscore, plain->strict.fscore);
+  EXPECT_NEAR(cropped->pred_area_m2, 4.0, 1e-4);
+
+  EvalOptions no_crop = SmallOptions();
+  no_crop.crop_to_gt = false;
+  const auto uncropped = EvaluateMeshes(Merged(pred, outside), gt, no_crop);
+  ASSERT_TRUE(uncropped.ok()) << uncropped.status();
+  EXPECT_NEAR(uncropped->pred_area_m2, 12.0, 1e-4);
+  EXPECT_GT(uncropped->strict.accuracy_m, 1.0);  // two thirds of the points are ~3 m off
+  EXPECT_NEAR(uncropped->standard.accuracy_m, 0.03, 0.002);
+}
+
+TEST(MeshEvalTest, CropClipsTrianglesExactly) {
+  Mesh tri;
+  tri.vertices = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}};
+  tri.faces = {{0, 1, 2}};
+  // The box keeps the unit square of the triangle (area 2 in all).
+  EXPECT_NEAR(Area(CropMeshToBox(tri, {0, 0, -1}, {1, 1, 1})), 1.0, 1e-6);
+  // A box across the hypotenuse keeps the triangle x + y <= 2 of [0.5, 1.5]^2 (area 0.5).
+  EXPECT_NEAR(Area(CropMeshToBox(tri, {0.5f, 0.5f, -1}, {1.5f, 1.5f, 1})), 0.5, 1e-6);
+  EXPECT_TRUE(CropMeshToBox(tri, {3, 3, -1}, {4, 4, 1}).faces.empty());
+  EXPECT_EQ(CropMeshToBox(tri, {-1, -1, -1}, {3, 3, 1}).faces.size(), 1u);
+  // A cube cut in half by a box.
+  EXPECT_NEAR(Area(CropMeshToBox(CubeSurface(1), {-2, -2, -2}, {0, 2, 2})), 12.0, 1e-4);
+}
+
+TEST(MeshEvalTest, ResultsDoNotDependOnThreads) {
+  const Mesh gt = CubeSurface(1.0f);
+  const Mesh pred = Merged(Rectangle(0, 1.02f, -1, 1, -1, 1), PlaneZ(0.3f, -0.5f, 0.5f, -1, 1));
+  EvalOptions one = SmallOptions(50'000), three = SmallOptions(50'000);
+  one.threads = 1;
+  three.threads = 3;
+  const auto a = EvaluateMeshes(pred, gt, one);
+  const auto b = EvaluateMeshes(pred, gt, three);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->pred_points, b->pred_points);
+  EXPECT_EQ(a->standard.accuracy_m, b->standard.accuracy_m);
+  EXPECT_EQ(a->strict.completeness_m, b->strict.completeness_m);
+  EXPECT_EQ(a->strict.fscore, b->strict.fscore);
+  // Another seed gives other samples but about the same numbers.
+  one.seed = 2;
+  const auto c = EvaluateMeshes(pred, gt, one);
+  ASSERT_TRUE(c.ok());
+  EXPECT_NE(c->standard.accuracy_m, a->standard.accuracy_m);
+  EXPECT_NEAR(c->standard.accuracy_m, a->standard.accuracy_m, 0.002);
+}
+
+TEST(MeshEvalTest, EmptyOrInvalidInputsAreErrors) {
+  const Mesh gt = PlaneZ(0, 0, 2, 0, 2);
+  const auto empty_pred = EvaluateMeshes(Mesh{}, gt, SmallOptions());
+  EXPECT_EQ(empty_pred.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(empty_pred.status().message().find("prediction"), std::string::npos);
+  // Nothing inside the GT box is the same as nothing at all.
+  const auto outside = EvaluateMeshes(PlaneZ(5, 0, 2, 0, 2), gt, SmallOptions());
+  EXPECT_EQ(outside.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(outside.status().message().find("GT box"), std::string::npos);
+  EXPECT_EQ(EvaluateMeshes(gt, Mesh{}, SmallOptions()).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  Mesh degenerate;
+  degenerate.vertices = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}};
+  degenerate.faces = {{0, 1, 2}};
+  EXPECT_EQ(EvaluateMeshes(gt, degenerate, SmallOptions()).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  Mesh bad_index = gt;
+  bad_index.faces.push_back({0, 1, 100000});
+  EXPECT_EQ(EvaluateMeshes(bad_index, gt, SmallOptions()).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  Mesh nan_vertex = gt;
+  nan_vertex.vertices[0][1] = NAN;
+  EXPECT_EQ(EvaluateMeshes(gt, nan_vertex, SmallOptions()).status().code(),
+            absl::StatusCode::kInvalidArgument);
+
+  EvalOptions options = SmallOptions();
+  options.voxel_m = -1;
+  const auto bad_option = EvaluateMeshes(gt, gt, options);
+  EXPECT_EQ(bad_option.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(bad_option.status().message().find("voxel_m"), std::string::npos);
+  options = SmallOptions();
+  options.samples = 0;
+  EXPECT_FALSE(ValidateEvalOptions(options).ok());
+}
+
+// --- The rim_eval command line -------------------------------------------------------------------
+
+// A minimal JSON syntax check (RFC 8259 grammar, no semantics), enough to catch broken output.
+class JsonChecker {
+ public:
+  explicit JsonChecker(const std::string& s) : s_(s) {}
+  bool Valid() {
+    if (!Value()) return false;
+    Space();
+    return i_ == s_.size();
+  }
+
+ private:
+  void Space() {
+    while (i_ < s_.size() && std::isspace(static_cast<unsigned char>(s_[i_]))) ++i_;
+  }
+  bool Literal(const char* word) {
+    const std::string w = word;
+    if (s_.compare(i_, w.size(), w) != 0) return false;
+    i_ += w.size();
+    return true;
+  }
+  bool String() {
+    if (s_[i_] != '"') return false;
+    for (++i_; i_ < s_.size(); ++i_) {
+      if (s_[i_] == '\\') {
+        ++i_;
+      } else if (s_[i_] == '"') {
+        ++i_;
+        return true;
+      } else if (static_cast<unsigned char>(s_[i_]) < 0x20) {
+        return false;
+      }
+    }
+    return false;
+  }
+  bool Number() {
+    const size_t start = i_;
+    if (s_[i_] == '-') ++i_;
+    while (i_ < s_.size() && (std::isdigit(static_cast<unsigned char>(s_[i_])) || s_[i_] == '.' ||
+                              s_[i_] == 'e' || s_[i_] == 'E' || s_[i_] == '+' || s_[i_] == '-')) {
+      ++i_;
+    }
+    char* end = nullptr;
+    const std::string text = s_.substr(start, i_ - start);
+    std::strtod(text.c_str(), &end);
+    return !text.empty() && end == text.c_str() + text.size();
+  }
+  bool Value() {
+    Space();
+    if (i_ >= s_.size()) return false;
+    const char c = s_[i_];
+    if (c == '{' || c == '[') {
+      const char close = c == '{' ? '}' : ']';
+      ++i_;
+      Space();
+      if (i_ < s_.size() && s_[i_] == close) return ++i_, true;
+      while (true) {
+        if (c == '{') {
+          Space();
+          if (!String()) return false;
+          Space();
+          if (i_ >= s_.size() || s_[i_++] != ':') return false;
+        }
+        if (!Value()) return false;
+        Space();
+        if (i_ >= s_.size()) return false;
+        if (s_[i_] == close) return ++i_, true;
+        if (s_[i_++] != ',') return false;
+      }
+    }
+    if (c == '"') return String();
+    if (c == 't') return Literal("true");
+    if (c == 'f') return Literal("false");
+    if (c == 'n') return Literal("null");
+    return Number();
+  }
+
+  const std::string& s_;
+  size_t i_ = 0;
+};
+
+TEST(JsonCheckerTest, AcceptsAndRejects) {
+  EXPECT_TRUE(JsonChecker(R"({"a": [1, -2.5e3, null, true], "b": {"c": "x\"y"}})").Valid());
+  EXPECT_FALSE(JsonChecker(R"({"a": nan})").Valid());
+  EXPECT_FALSE(JsonChecker(R"({"a": 1,})").Valid());
+  EXPECT_FALSE(JsonChecker(R"({"a": 1} x)").Valid());
+}
+
+// The rim_eval binary sits in clients/ of the same build tree (RIM_EVAL_BIN overrides).
+std::string RimEvalPath() {
+  if (const char* env = std::getenv("RIM_EVAL_BIN")) return env;
+  char self[4096];
+  const ssize_t n = readlink("/proc/self/exe", self, sizeof(self) - 1);
+  if (n <= 0) return "";
+  std::string dir(self, n);
+  dir = dir.substr(0, dir.rfind('/'));
+  return dir + "/../clients/rim_eval";
+}
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out;  // stdout and stderr
+};
+
+RunResult RunRimEval(const std::string& args) {
+  RunResult r;
+  FILE* pipe = popen((RimEvalPath() + " " + args + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) return r;
+  char buf[4096];
+  for (size_t n; (n = fread(buf, 1, sizeof(buf), pipe)) > 0;) r.out.append(buf, n);
+  const int status = pclose(pipe);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+class RimEvalCliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (access(RimEvalPath().c_str(), X_OK) != 0) {
+      GTEST_SKIP() << "rim_eval not built at " << RimEvalPath() << " (build target rim_eval)";
+    }
+    pred_ = ::testing::TempDir() + "/rim_mesh_eval_pred.ply";
+    gt_ = ::testing::TempDir() + "/rim_mesh_eval_gt.ply";
+    ASSERT_TRUE(WriteMeshPly(pred_, PlaneZ(0.03f, 0, 2, 0, 2)).ok());
+    ASSERT_TRUE(WriteMeshPly(gt_, PlaneZ(0, 0, 2, 0, 2)).ok());
+  }
+  std::string pred_, gt_;
+};
+
+TEST_F(RimEvalCliTest, PrintsTable) {
+  const RunResult r = RunRimEval(pred_ + " " + gt_ + " --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  for (const char* want : {"Acc [cm]", "Comp [cm]", "C-L1 [cm]", "F [%]", "standard", "strict"}) {
+    EXPECT_NE(r.out.find(want), std::string::npos) << want << " missing from:\n" << r.out;
+  }
+}
+
+TEST_F(RimEvalCliTest, PrintsJson) {
+  const RunResult r = RunRimEval(pred_ + " " + gt_ + " --json --samples=20000 --threads 1");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
+  for (const char* key :
+       {"\"standard\"", "\"strict\"", "\"accuracy_cm\"", "\"completeness_cm\"", "\"chamfer_l1_cm\"",
+        "\"precision_pct\"", "\"recall_pct\"", "\"fscore_pct\"", "\"points\"", "\"protocol\""}) {
+    EXPECT_NE(r.out.find(key), std::string::npos) << key << " missing from:\n" << r.out;
+  }
+  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+}
+
+TEST_F(RimEvalCliTest, FailsClearlyOnBadInput) {
+  RunResult r = RunRimEval(pred_ + " /nonexistent/gt.ply");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.out.find("/nonexistent/gt.ply"), std::string::npos) << r.out;
+  r = RunRimEval(pred_);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.out.find("usage"), std::string::npos) << r.out;
+  r = RunRimEval(pred_ + " " + gt_ + " --samples lots --frobnicate");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.out.find("bad value for --samples: 'lots'"), std::string::npos) << r.out;
+}
+
+}  // namespace
+}  // namespace rim::eval

@@ -1,0 +1,806 @@
+// Tests of rim_sim: the analytic geometry, the ray caster, the ground-truth mesh and the
+// written datasets (KITTI city, 7-Scenes room), and the command line.
+#include "sim/sim.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+#include <sstream>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "rim/mesh_io.h"
+#include "sim/city.h"
+#include "sim/geometry.h"
+#include "sim/rng.h"
+#include "sim/room.h"
+#include "sim/scene.h"
+#include "sim/sensors.h"
+#include "sim/writers.h"
+
+namespace rim::sim {
+namespace {
+
+// A fresh, empty folder per test and process (ctest runs test cases in parallel processes).
+std::string TempDir(const std::string& name) {
+  const std::string dir = absl::StrCat(::testing::TempDir(), "/rim_sim_test_", name, "_", getpid());
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// Every regular file under dir, as relative path -> bytes.
+std::map<std::string, std::string> ReadTree(const std::string& dir) {
+  std::map<std::string, std::string> files;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir)) {
+    if (e.is_regular_file()) {
+      files[std::filesystem::relative(e.path(), dir).string()] = ReadFile(e.path().string());
+    }
+  }
+  return files;
+}
+
+std::vector<LidarPoint> ReadScan(const std::string& path) {
+  const std::string bytes = ReadFile(path);
+  EXPECT_EQ(bytes.size() % sizeof(LidarPoint), 0u) << path;
+  std::vector<LidarPoint> points(bytes.size() / sizeof(LidarPoint));
+  std::memcpy(points.data(), bytes.data(), points.size() * sizeof(LidarPoint));
+  return points;
+}
+
+std::vector<Eigen::Isometry3d> ReadKittiPoses(const std::string& path) {
+  std::vector<Eigen::Isometry3d> poses;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    std::istringstream ls(line);
+    Eigen::Isometry3d p = Eigen::Isometry3d::Identity();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 4; ++c) EXPECT_TRUE(static_cast<bool>(ls >> p.matrix()(r, c))) << line;
+    }
+    double extra;
+    EXPECT_FALSE(static_cast<bool>(ls >> extra)) << "more than 12 numbers: " << line;
+    poses.push_back(p);
+  }
+  return poses;
+}
+
+std::string ScanPath(const std::string& dir, int frame) {
+  return absl::StrFormat("%s/velodyne/%06d.bin", dir, frame);
+}
+
+SimOptions SmallCity(const std::string& dir) {
+  SimOptions o;
+  o.scene = SceneKind::kCity;
+  o.out_dir = dir;
+  o.frames = 3;
+  o.columns = 450;
+  o.gt_margin = 30.0;
+  o.threads = 2;
+  return o;
+}
+
+// Exact distance from points to a triangle mesh, through a uniform grid of triangle lists.
+class MeshDistance {
+ public:
+  explicit MeshDistance(const Mesh& mesh, double cell = 1.0) : mesh_(mesh), cell_(cell) {
+    for (size_t f = 0; f < mesh.faces.size(); ++f) {
+      Eigen::Vector3d lo = V(mesh.faces[f][0]), hi = lo;
+      for (int k = 1; k < 3; ++k) {
+        lo = lo.cwiseMin(V(mesh.faces[f][k]));
+        hi = hi.cwiseMax(V(mesh.faces[f][k]));
+      }
+      const Eigen::Vector3i a = Cell(lo), b = Cell(hi);
+      for (int x = a.x(); x <= b.x(); ++x) {
+        for (int y = a.y(); y <= b.y(); ++y) {
+          for (int z = a.z(); z <= b.z(); ++z) cells_[Key(x, y, z)].push_back(f);
+        }
+      }
+    }
+  }
+
+  // Distance to the nearest triangle, exact when it is below `reach`; otherwise some value
+  // >= reach.
+  double Distance(const Eigen::Vector3d& p, double reach = 0.05) const {
+    double best = std::numeric_limits<double>::infinity();
+    const Eigen::Vector3i a = Cell(p - Eigen::Vector3d::Constant(reach));
+    const Eigen::Vector3i b = Cell(p + Eigen::Vector3d::Constant(reach));
+    for (int x = a.x(); x <= b.x(); ++x) {
+      for (int y = a.y(); y <= b.y(); ++y) {
+        for (int z = a.z(); z <= b.z(); ++z) {
+          const auto it = cells_.find(Key(x, y, z));
+          if (it == cells_.end()) continue;
+          for (size_t f : it->second) {
+            const auto& t = mesh_.faces[f];
+            best = std::min(best, PointTriangle(p, V(t[0]), V(t[1]), V(t[2])));
+          }
+        }
+      }
+    }
+    return best;
+  }
+
+ private:
+  Eigen::Vector3d V(uint32_t i) const {
+    return Eigen::Vector3d(mesh_.vertices[i][0], mesh_.vertices[i][1], mesh_.vertices[i][2]);
+  }
+  Eigen::Vector3i Cell(const Eigen::Vector3d& p) const {
+    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() / cell_)),
+                           static_cast<int>(std::floor(p.y() / cell_)),
+                           static_cast<int>(std::floor(p.z() / cell_)));
+  }
+  static int64_t Key(int x, int y, int z) {
+    return (static_cast<int64_t>(x & 0x1FFFFF) << 42) | (static_cast<int64_t>(y & 0x1FFFFF) << 21) |
+           static_cast<int64_t>(z & 0x1FFFFF);
+  }
+  // Closest point on a triangle (Ericson, Real-Time Collision Detection 5.1.5).
+  static double PointTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                              const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
+    const Eigen::Vector3d ab = b - a, ac = c - a, ap = p - a;
+    const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    if (d1 <= 0 && d2 <= 0) return (p - a).norm();
+    const Eigen::Vector3d bp = p - b;
+    const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    if (d3 >= 0 && d4 <= d3) return (p - b).norm();
+    const double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) return (p - (a + d1 / (d1 - d3) * ab)).norm();
+    const Eigen::Vector3d cp = p - c;
+    const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    if (d6 >= 0 && d5 <= d6) return (p - c).norm();
+    const double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) return (p - (a + d2 / (d2 - d6) * ac)).norm();
+    const double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+      return (p - (b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b))).norm();
+    }
+    const double denom = 1.0 / (va + vb + vc);
+    return (p - (a + ab * (vb * denom) + ac * (vc * denom))).norm();
+  }
+
+  const Mesh& mesh_;
+  double cell_;
+  std::unordered_map<int64_t, std::vector<size_t>> cells_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Geometry
+
+TEST(SimGeometryTest, RayHitsLieOnTheSurfaceOfEveryShape) {
+  const std::vector<Shape> shapes = {
+      MakeBox(Vec3(1, 2, 3), Vec3(1.5, 0.5, 2), 0.7),
+      Cylinder{Vec2(-1, 0.5), 0.3, -1.0, 2.0},
+      Sphere{Vec3(0.5, -0.5, 1), 1.2},
+      Cone{Vec2(0.2, 0.1), 1.5, 0.5, 4.0},
+  };
+  Rng rng(7);
+  for (size_t s = 0; s < shapes.size(); ++s) {
+    const Aabb b = Bounds(shapes[s]);
+    const Vec3 mid = 0.5 * (b.min + b.max);
+    int hits = 0;
+    for (int i = 0; i < 2000; ++i) {
+      const Vec3 dir = Vec3(rng.Normal(), rng.Normal(), rng.Normal()).normalized();
+      const Vec3 target = mid + Vec3(rng.Uniform(-1, 1), rng.Uniform(-1, 1), rng.Uniform(-1, 1));
+      const Vec3 o = target - 20.0 * dir;
+      double t;
+      Vec3 n;
+      if (!Intersect(shapes[s], o, dir, 0.0, 100.0, &t, &n)) continue;
+      ++hits;
+      const Vec3 p = o + t * dir;
+      EXPECT_TRUE(Contains(shapes[s], p, -1e-6)) << "shape " << s << " point " << p.transpose();
+      EXPECT_FALSE(Contains(shapes[s], p, 1e-6)) << "shape " << s << " point " << p.transpose();
+      EXPECT_NEAR(n.norm(), 1.0, 1e-9);
+      EXPECT_LT(n.dot(dir), 1e-9) << "normal must face the incoming ray";
+      EXPECT_FALSE(Contains(shapes[s], p + 1e-4 * n, 0.0)) << "normal must point outward";
+    }
+    EXPECT_GT(hits, 200) << "shape " << s;
+  }
+}
+
+TEST(SimGeometryTest, RoomShellIsHitFromInside) {
+  const RoomShell room{Vec3(-2, -1, 0), Vec3(3, 2, 2.5)};
+  Rng rng(3);
+  for (int i = 0; i < 500; ++i) {
+    const Vec3 o(rng.Uniform(-1.9, 2.9), rng.Uniform(-0.9, 1.9), rng.Uniform(0.1, 2.4));
+    const Vec3 d = Vec3(rng.Normal(), rng.Normal(), rng.Normal()).normalized();
+    double t;
+    Vec3 n;
+    ASSERT_TRUE(Intersect(room, o, d, 0.0, 100.0, &t, &n));
+    const Vec3 p = o + t * d;
+    const double to_wall =
+        std::min({p.x() + 2, 3 - p.x(), p.y() + 1, 2 - p.y(), p.z(), 2.5 - p.z()});
+    EXPECT_NEAR(to_wall, 0.0, 1e-9);
+    EXPECT_LT(n.dot(d), 0.0);
+  }
+}
+
+TEST(SimGeometryTest, SubtractConvexKeepsExactlyTheAreaOutsideTheHole) {
+  const std::vector<Vec2> square = {Vec2(0, 0), Vec2(2, 0), Vec2(2, 2), Vec2(0, 2)};
+  // A rotated square overlapping a corner.
+  std::vector<Vec2> hole;
+  for (int i = 0; i < 4; ++i) {
+    const double a = 0.3 + i * M_PI / 2;
+    hole.push_back(Vec2(2, 2) + 0.8 * Vec2(std::cos(a), std::sin(a)));
+  }
+  const auto pieces = SubtractConvex(square, hole);
+  double area = 0;
+  for (const auto& p : pieces) {
+    EXPECT_GT(PolygonArea(p), 0.0);
+    area += PolygonArea(p);
+  }
+  std::vector<Vec2> overlap = square;
+  for (size_t i = 0; i < hole.size(); ++i) overlap = ClipLeft(overlap, hole[i], hole[(i + 1) % 4]);
+  EXPECT_NEAR(area + PolygonArea(overlap), 4.0, 1e-12);
+  EXPECT_GT(PolygonArea(overlap), 0.1);
+  // Disjoint hole: the polygon comes back whole; covering hole: nothing is left.
+  const std::vector<Vec2> far = {Vec2(5, 5), Vec2(6, 5), Vec2(6, 6), Vec2(5, 6)};
+  double far_area = 0;
+  for (const auto& p : SubtractConvex(square, far)) far_area += PolygonArea(p);
+  EXPECT_NEAR(far_area, 4.0, 1e-12);
+  const std::vector<Vec2> big = {Vec2(-1, -1), Vec2(3, -1), Vec2(3, 3), Vec2(-1, 3)};
+  EXPECT_TRUE(SubtractConvex(square, big).empty());
+}
+
+TEST(SimGeometryTest, TessellationStaysWithinTolerance) {
+  // Vertices of curved shapes lie on the surface and face centres no deeper than the tolerance.
+  const double tol = 0.005;
+  const std::vector<Shape> shapes = {Sphere{Vec3(0, 0, 3), 2.2}, Cylinder{Vec2(0, 0), 0.25, 0, 3},
+                                     Cone{Vec2(0, 0), 1.8, 2, 8}};
+  for (const Shape& s : shapes) {
+    TessellationOptions opt;
+    opt.tolerance = tol;
+    std::vector<Polygon> polys;
+    Tessellate(s, opt, &polys);
+    ASSERT_FALSE(polys.empty());
+    for (const Polygon& p : polys) {
+      Vec3 c = Vec3::Zero();
+      for (const Vec3& v : p.corners) {
+        EXPECT_TRUE(Contains(s, v, -1e-9));
+        c += v;
+      }
+      c /= p.corners.size();
+      EXPECT_TRUE(Contains(s, c, -1e-9));
+      EXPECT_FALSE(Contains(s, c, tol)) << "face centre deeper than the tolerance";
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Scene and ray caster
+
+TEST(SimSceneTest, GridRayCasterMatchesBruteForce) {
+  const City city = GenerateCity(CityOptions{});
+  const RayCaster caster(city.scene, 4.0);
+  Scene one;  // one primitive at a time, for the brute force
+  Rng rng(11);
+  for (int i = 0; i < 3000; ++i) {
+    const Vec3 o(rng.Uniform(-20, 180), rng.Uniform(-20, 100), rng.Uniform(0.5, 25));
+    const Vec3 d = Vec3(rng.Normal(), rng.Normal(), 0.5 * rng.Normal()).normalized();
+    double best = 80.0;
+    bool any = false;
+    if (d.z() < 0) {
+      best = std::min(best, -o.z() / d.z());
+      any = best < 80.0;
+    }
+    for (const Primitive& p : city.scene.primitives) {
+      double t;
+      Vec3 n;
+      if (Intersect(p.shape, o, d, 0.0, best, &t, &n)) {
+        best = t;
+        any = true;
+      }
+    }
+    RayHit hit;
+    const bool got = caster.Cast(o, d, 0.0, 80.0, &hit);
+    ASSERT_EQ(got, any) << "ray " << i;
+    if (got) EXPECT_NEAR(hit.t, best, 1e-9) << "ray " << i;
+  }
+}
+
+TEST(SimSceneTest, CityIsDeterministicAndVariesWithSeed) {
+  const City a = GenerateCity(CityOptions{});
+  const City b = GenerateCity(CityOptions{});
+  CityOptions other;
+  other.seed = 2;
+  const City c = GenerateCity(other);
+  ASSERT_EQ(a.scene.primitives.size(), b.scene.primitives.size());
+  EXPECT_GT(a.scene.primitives.size(), 300u);
+  int buildings = 0, trees = 0, poles = 0, cars = 0;
+  for (size_t i = 0; i < a.scene.primitives.size(); ++i) {
+    const Aabb x = Bounds(a.scene.primitives[i].shape), y = Bounds(b.scene.primitives[i].shape);
+    EXPECT_EQ(x.min, y.min);
+    EXPECT_EQ(x.max, y.max);
+    switch (a.scene.primitives[i].material) {
+      case Material::kBuilding:
+        ++buildings;
+        EXPECT_GE(x.max.z(), 4.0);
+        EXPECT_LE(x.max.z(), 20.0);
+        break;
+      case Material::kTree:
+        ++trees;
+        break;
+      case Material::kPole:
+        ++poles;
+        break;
+      case Material::kCar:
+        ++cars;
+        break;
+      default:
+        break;
+    }
+  }
+  EXPECT_GT(buildings, 50);
+  EXPECT_GT(trees, 50);
+  EXPECT_GT(poles, 10);
+  EXPECT_GT(cars, 20);
+  bool differs = c.scene.primitives.size() != a.scene.primitives.size();
+  for (size_t i = 0; !differs && i < a.scene.primitives.size(); ++i) {
+    differs = Bounds(a.scene.primitives[i].shape).min != Bounds(c.scene.primitives[i].shape).min;
+  }
+  EXPECT_TRUE(differs);
+}
+
+TEST(SimSceneTest, DefaultGroundTruthStaysSmall) {
+  // The 100-frame default run's gt.ply must stay a few MB (binary PLY: 12 B/vertex, 13 B/face).
+  const City city = GenerateCity(CityOptions{});
+  const auto poses = CityTrajectory(city, 100, 1.0, 1.73);
+  GroundTruthOptions opt;
+  Vec2 lo = Vec2::Constant(1e9), hi = Vec2::Constant(-1e9);
+  for (const auto& p : poses) {
+    lo = lo.cwiseMin(p.translation().head<2>());
+    hi = hi.cwiseMax(p.translation().head<2>());
+  }
+  opt.region_min = lo - Vec2::Constant(80);
+  opt.region_max = hi + Vec2::Constant(80);
+  const Mesh gt = BuildGroundTruthMesh(city.scene, opt);
+  const double bytes = 12.0 * gt.vertices.size() + 13.0 * gt.faces.size();
+  EXPECT_LT(bytes, 6e6);
+  EXPECT_GT(gt.faces.size(), 10000u);
+}
+
+// Hidden surface is removed: no face of gt.ply lies inside a solid, and the ground and floors
+// have the footprints of what stands on them cut out.
+void ExpectNoBuriedFaces(const Scene& scene, const Mesh& gt) {
+  const GridIndex index(scene.primitives, 4.0);
+  int buried = 0, covered = 0;
+  for (const auto& f : gt.faces) {
+    Vec3 v[3];
+    for (int k = 0; k < 3; ++k) {
+      v[k] = Vec3(gt.vertices[f[k]][0], gt.vertices[f[k]][1], gt.vertices[f[k]][2]);
+    }
+    const Vec3 c = (v[0] + v[1] + v[2]) / 3.0;
+    const bool flat_up = std::abs(v[0].z() - v[1].z()) < 1e-6 &&
+                         std::abs(v[0].z() - v[2].z()) < 1e-6 &&
+                         (v[1] - v[0]).cross(v[2] - v[0]).z() > 0;
+    auto check = [&](int i) {
+      const Shape& s = scene.primitives[i].shape;
+      buried += ContainsAll(s, v, 3, 1e-3);
+      // An upward face (ground, roof, table top) is never covered by a solid standing on it.
+      // (Slivers thinner than the tessellation tolerance stay: they meet the inscribed polygon
+      // of a curved solid.)
+      if (flat_up && Contains(s, c + Vec3(0, 0, 1e-3), 0.006)) ++covered;
+    };
+    index.ForEachInRect(c.head<2>() - Vec2::Constant(1), c.head<2>() + Vec2::Constant(1), check);
+    for (int i : index.unbounded()) check(i);
+  }
+  EXPECT_EQ(buried, 0);
+  EXPECT_EQ(covered, 0);
+}
+
+TEST(SimSceneTest, GroundTruthHasNoHiddenFaces) {
+  const City city = GenerateCity(CityOptions{});
+  GroundTruthOptions opt;
+  opt.region_min = Vec2(60, -30);
+  opt.region_max = Vec2(170, 40);
+  const Mesh gt = BuildGroundTruthMesh(city.scene, opt);
+  ExpectNoBuriedFaces(city.scene, gt);
+  const Room room = GenerateRoom(1);
+  ExpectNoBuriedFaces(room.scene, BuildGroundTruthMesh(room.scene, GroundTruthOptions{}));
+}
+
+TEST(SimSceneTest, TrajectoryIsSmoothAndStaysOnTheRoad) {
+  const City city = GenerateCity(CityOptions{});
+  const auto poses = CityTrajectory(city, 600, 1.0, 1.73);  // more than one lap
+  const RayCaster caster(city.scene, 4.0);
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const Eigen::Isometry3d& p = poses[k];
+    EXPECT_NEAR(p.translation().z(), 1.73, 1e-12);
+    // Nothing solid at the sensor, nor within 0.5 m of it horizontally.
+    RayHit hit;
+    for (int a = 0; a < 8; ++a) {
+      const Vec3 d(std::cos(a * M_PI / 4), std::sin(a * M_PI / 4), 0);
+      EXPECT_FALSE(caster.Cast(p.translation(), d, 0.0, 0.5, &hit)) << "frame " << k;
+    }
+    if (k == 0) continue;
+    const double dist = (p.translation() - poses[k - 1].translation()).norm();
+    EXPECT_NEAR(dist, 1.0, 2e-3) << "frame " << k;
+    const Eigen::AngleAxisd turn(poses[k - 1].linear().transpose() * p.linear());
+    EXPECT_LT(turn.angle(), 0.1) << "yaw changes smoothly, frame " << k;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Datasets written by RunSim
+
+TEST(SimCityTest, SameSeedSameBytesWhateverTheThreadCount) {
+  SimOptions a = SmallCity(TempDir("det_a"));
+  a.walkers = 5;
+  a.noise = 0.02;
+  a.threads = 1;
+  SimOptions b = a;
+  b.out_dir = TempDir("det_b");
+  b.threads = 3;
+  ASSERT_TRUE(RunSim(a).ok());
+  ASSERT_TRUE(RunSim(b).ok());
+  const auto fa = ReadTree(a.out_dir), fb = ReadTree(b.out_dir);
+  EXPECT_EQ(fa.size(), 3u + 6u);  // 3 scans, poses, calib, times, gt, scene.json, README
+  ASSERT_EQ(fa.size(), fb.size());
+  for (const auto& [name, bytes] : fa) {
+    ASSERT_TRUE(fb.count(name)) << name;
+    EXPECT_TRUE(bytes == fb.at(name)) << name << " differs";
+  }
+  // Running again into the same folder with fewer frames leaves no stale scans.
+  a.frames = 2;
+  ASSERT_TRUE(RunSim(a).ok());
+  EXPECT_FALSE(std::filesystem::exists(ScanPath(a.out_dir, 2)));
+  EXPECT_EQ(ReadFile(ScanPath(a.out_dir, 1)), fb.at("velodyne/000001.bin"));
+}
+
+TEST(SimCityTest, RerunningReplacesThePreviousDataset) {
+  const std::string dir = TempDir("rerun");
+  SimOptions city = SmallCity(dir);
+  ASSERT_TRUE(RunSim(city).ok());
+  { std::ofstream(dir + "/notes.txt") << "mine"; }
+  SimOptions room;
+  room.scene = SceneKind::kRoom;
+  room.out_dir = dir;
+  room.frames = 2;
+  ASSERT_TRUE(RunSim(room).ok());
+  // Only the room's 7-Scenes files (and the user's own file) are left.
+  std::vector<std::string> names;
+  for (const auto& [name, bytes] : ReadTree(dir)) names.push_back(name);
+  EXPECT_EQ(names, (std::vector<std::string>{"README.txt", "camera-intrinsics.txt",
+                                             "frame-000000.depth.png", "frame-000000.pose.txt",
+                                             "frame-000001.depth.png", "frame-000001.pose.txt",
+                                             "gt.ply", "notes.txt", "scene.json"}));
+  EXPECT_FALSE(std::filesystem::exists(dir + "/velodyne"));
+  ASSERT_TRUE(RunSim(city).ok());
+  EXPECT_FALSE(std::filesystem::exists(dir + "/camera-intrinsics.txt"));
+  EXPECT_FALSE(std::filesystem::exists(dir + "/frame-000000.depth.png"));
+  EXPECT_TRUE(std::filesystem::exists(dir + "/notes.txt"));
+  EXPECT_TRUE(std::filesystem::exists(ScanPath(dir, 2)));
+}
+
+TEST(SimCityTest, DifferentSeedsGiveDifferentData) {
+  SimOptions a = SmallCity(TempDir("seed_a"));
+  SimOptions b = a;
+  b.out_dir = TempDir("seed_b");
+  b.seed = 2;
+  ASSERT_TRUE(RunSim(a).ok());
+  ASSERT_TRUE(RunSim(b).ok());
+  EXPECT_NE(ReadFile(a.out_dir + "/gt.ply"), ReadFile(b.out_dir + "/gt.ply"));
+  EXPECT_NE(ReadFile(ScanPath(a.out_dir, 0)), ReadFile(ScanPath(b.out_dir, 0)));
+  // The drive is the same: only the scene changes.
+  EXPECT_EQ(ReadFile(a.out_dir + "/poses.txt"), ReadFile(b.out_dir + "/poses.txt"));
+}
+
+TEST(SimCityTest, EveryLidarHitLiesOnTheGroundTruthMesh) {
+  SimOptions o = SmallCity(TempDir("hits"));
+  o.frames = 2;
+  o.columns = 900;
+  ASSERT_TRUE(RunSim(o).ok());
+  const auto gt = ReadMeshPly(o.out_dir + "/gt.ply");
+  ASSERT_TRUE(gt.ok()) << gt.status();
+  const MeshDistance dist(*gt);
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  ASSERT_EQ(poses.size(), 2u);
+  // gt.ply covers the drive's extent grown by gt_margin; hits beyond it are not checked.
+  Vec2 lo = Vec2::Constant(1e9), hi = Vec2::Constant(-1e9);
+  for (const auto& p : poses) {
+    lo = lo.cwiseMin(p.translation().head<2>());
+    hi = hi.cwiseMax(p.translation().head<2>());
+  }
+  int checked = 0, far = 0;
+  double worst = 0;
+  for (int k = 0; k < 2; ++k) {
+    const auto points = ReadScan(ScanPath(o.out_dir, k));
+    EXPECT_GT(points.size(), 0.8 * 64 * 900);
+    for (const LidarPoint& lp : points) {
+      const Vec3 w = poses[k] * Vec3(lp.x, lp.y, lp.z);
+      if ((w.head<2>().array() > lo.array() - o.gt_margin + 0.5).all() &&
+          (w.head<2>().array() < hi.array() + o.gt_margin - 0.5).all()) {
+        const double d = dist.Distance(w);
+        worst = std::max(worst, d);
+        if (d >= 0.01) ++far;
+        ++checked;
+        EXPECT_GE(lp.intensity, 0.0f);
+        EXPECT_LE(lp.intensity, 1.0f);
+      }
+    }
+  }
+  EXPECT_GT(checked, 50000);
+  EXPECT_EQ(far, 0) << "worst distance " << worst;
+  EXPECT_LT(worst, 0.01);
+}
+
+TEST(SimCityTest, WalkersAppearInScansButNotInGroundTruth) {
+  SimOptions with = SmallCity(TempDir("walkers_with"));
+  with.walkers = 60;
+  with.frames = 4;
+  SimOptions without = with;
+  without.out_dir = TempDir("walkers_without");
+  without.walkers = 0;
+  ASSERT_TRUE(RunSim(with).ok());
+  ASSERT_TRUE(RunSim(without).ok());
+  const std::string gt_bytes = ReadFile(with.out_dir + "/gt.ply");
+  EXPECT_EQ(gt_bytes, ReadFile(without.out_dir + "/gt.ply")) << "gt.ply must not contain walkers";
+
+  CityOptions co;
+  co.seed = with.seed;
+  co.walkers = with.walkers;
+  const City city = GenerateCity(co);
+  const auto gt = ReadMeshPly(with.out_dir + "/gt.ply");
+  ASSERT_TRUE(gt.ok());
+  const MeshDistance dist(*gt);
+  const auto poses = ReadKittiPoses(with.out_dir + "/poses.txt");
+  int walker_hits = 0, frames_with_walkers = 0;
+  for (int k = 0; k < with.frames; ++k) {
+    const std::vector<Primitive> walkers = WalkersAt(city, k / kFrameRateHz);
+    int in_frame = 0;
+    for (const LidarPoint& lp : ReadScan(ScanPath(with.out_dir, k))) {
+      const Vec3 w = poses[k] * Vec3(lp.x, lp.y, lp.z);
+      bool on_walker = false;
+      for (const Primitive& p : walkers) on_walker = on_walker || Contains(p.shape, w, -0.01);
+      if (!on_walker) continue;
+      ++in_frame;
+      // Walker points are off the static surface (unless they are where a walker meets the
+      // ground or stands in front of something within a centimetre).
+      if (w.z() > 0.05) EXPECT_GT(dist.Distance(w), 0.05) << w.transpose();
+    }
+    walker_hits += in_frame;
+    frames_with_walkers += in_frame > 0;
+  }
+  EXPECT_GT(walker_hits, 100);
+  EXPECT_EQ(frames_with_walkers, with.frames);
+  // And the scans differ from the walker-free ones.
+  EXPECT_NE(ReadFile(ScanPath(with.out_dir, 0)), ReadFile(ScanPath(without.out_dir, 0)));
+}
+
+TEST(SimCityTest, NoiseHasTheRequestedStandardDeviation) {
+  SimOptions clean = SmallCity(TempDir("noise_clean"));
+  clean.frames = 2;
+  SimOptions noisy = clean;
+  noisy.out_dir = TempDir("noise_noisy");
+  noisy.noise = 0.05;
+  ASSERT_TRUE(RunSim(clean).ok());
+  ASSERT_TRUE(RunSim(noisy).ok());
+  double sum = 0, sum2 = 0;
+  int n = 0;
+  for (int k = 0; k < clean.frames; ++k) {
+    const auto a = ReadScan(ScanPath(clean.out_dir, k));
+    const auto b = ReadScan(ScanPath(noisy.out_dir, k));
+    ASSERT_EQ(a.size(), b.size()) << "the same rays return with and without noise";
+    for (size_t i = 0; i < a.size(); ++i) {
+      const Vec3 pa(a[i].x, a[i].y, a[i].z), pb(b[i].x, b[i].y, b[i].z);
+      // Noise is along the ray: same direction, different range.
+      EXPECT_NEAR(pa.normalized().dot(pb.normalized()), 1.0, 1e-6);
+      const double e = pb.norm() - pa.norm();
+      sum += e;
+      sum2 += e * e;
+      ++n;
+    }
+  }
+  ASSERT_GT(n, 10000);
+  const double mean = sum / n, stddev = std::sqrt(sum2 / n - mean * mean);
+  EXPECT_NEAR(mean, 0.0, 0.002);
+  EXPECT_NEAR(stddev, 0.05, 0.0025);
+}
+
+TEST(SimCityTest, PosesCalibAndTimesParseBack) {
+  SimOptions o = SmallCity(TempDir("poses"));
+  o.frames = 5;
+  o.step = 1.5;
+  ASSERT_TRUE(RunSim(o).ok());
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  ASSERT_EQ(poses.size(), 5u);
+  const City city = GenerateCity(CityOptions{});
+  const auto expected = CityTrajectory(city, 5, 1.5, 1.73);
+  for (int k = 0; k < 5; ++k) {
+    EXPECT_TRUE(poses[k].matrix().isApprox(expected[k].matrix(), 1e-11)) << "frame " << k;
+    const Eigen::Matrix3d r = poses[k].linear();
+    EXPECT_TRUE((r.transpose() * r).isIdentity(1e-11));
+    EXPECT_NEAR(r.determinant(), 1.0, 1e-11);
+  }
+  // calib.txt: P0..P3 and an identity Tr.
+  std::ifstream calib(o.out_dir + "/calib.txt");
+  std::string line;
+  std::vector<std::string> keys;
+  while (std::getline(calib, line)) {
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    keys.push_back(key);
+    std::vector<double> v;
+    double x;
+    while (ls >> x) v.push_back(x);
+    ASSERT_EQ(v.size(), 12u) << line;
+    if (key == "Tr:") {
+      const std::vector<double> identity = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+      EXPECT_EQ(v, identity);
+    }
+  }
+  EXPECT_EQ(keys, (std::vector<std::string>{"P0:", "P1:", "P2:", "P3:", "Tr:"}));
+  std::ifstream times(o.out_dir + "/times.txt");
+  std::vector<double> t;
+  double x;
+  while (times >> x) t.push_back(x);
+  ASSERT_EQ(t.size(), 5u);
+  EXPECT_DOUBLE_EQ(t[4], 0.4);
+  EXPECT_NE(ReadFile(o.out_dir + "/scene.json").find("\"frames\": 5"), std::string::npos);
+}
+
+TEST(SimRoomTest, DepthPixelsBackProjectOntoTheGroundTruth) {
+  SimOptions o;
+  o.scene = SceneKind::kRoom;
+  o.out_dir = TempDir("room");
+  o.frames = 3;
+  o.step = 1.0;  // frames far apart round the room
+  ASSERT_TRUE(RunSim(o).ok());
+  const auto gt = ReadMeshPly(o.out_dir + "/gt.ply");
+  ASSERT_TRUE(gt.ok()) << gt.status();
+  const MeshDistance dist(*gt, 0.25);
+  std::ifstream kin(o.out_dir + "/camera-intrinsics.txt");
+  Eigen::Matrix3d K;
+  for (int i = 0; i < 9; ++i) ASSERT_TRUE(static_cast<bool>(kin >> K(i / 3, i % 3)));
+  EXPECT_EQ(K(0, 0), 300.0);
+  EXPECT_EQ(K(2, 2), 1.0);
+  for (int k = 0; k < o.frames; ++k) {
+    const std::string stem = o.out_dir + absl::StrFormat("/frame-%06d", k);
+    const auto png = ReadPng16(stem + ".depth.png");
+    ASSERT_TRUE(png.ok()) << png.status();
+    ASSERT_EQ(png->width, 320);
+    ASSERT_EQ(png->height, 240);
+    std::ifstream pin(stem + ".pose.txt");
+    Eigen::Matrix4d m;
+    for (int i = 0; i < 16; ++i) ASSERT_TRUE(static_cast<bool>(pin >> m(i / 4, i % 4)));
+    EXPECT_EQ(m.row(3), Eigen::RowVector4d(0, 0, 0, 1));
+    Eigen::Isometry3d pose(m);
+    // Camera looks forward along +z and slightly down: its z axis points below the horizon.
+    EXPECT_LT(pose.linear().col(2).z(), 0.0);
+    EXPECT_NEAR(pose.linear().col(0).z(), 0.0, 1e-12) << "no roll: x axis stays horizontal";
+    int valid = 0, far = 0;
+    double worst = 0;
+    for (int v = 0; v < png->height; ++v) {
+      for (int u = 0; u < png->width; ++u) {
+        const uint16_t mm = png->pixels[v * png->width + u];
+        if (mm == 0) continue;
+        ++valid;
+        if ((u + v) % 3 != 0) continue;  // a third of the pixels is plenty
+        const double z = mm / 1000.0;
+        const Vec3 pc((u - K(0, 2)) * z / K(0, 0), (v - K(1, 2)) * z / K(1, 1), z);
+        const double d = dist.Distance(pose * pc);
+        worst = std::max(worst, d);
+        far += d >= 0.01;
+      }
+    }
+    EXPECT_GT(valid, 0.99 * 320 * 240) << "a closed room returns almost everywhere";
+    EXPECT_EQ(far, 0) << "frame " << k << " worst " << worst;
+  }
+}
+
+TEST(SimRoomTest, RoomHasFurnitureAndAClearPath) {
+  for (uint64_t seed : {1, 2, 3}) {
+    const Room room = GenerateRoom(seed);
+    EXPECT_GE(room.scene.primitives.size(), 10u) << "seed " << seed;
+    const RayCaster caster(room.scene, 0.5);
+    for (const auto& p : RoomTrajectory(room, 200, 0.1)) {
+      for (const Primitive& prim : room.scene.primitives) {
+        EXPECT_FALSE(Contains(prim.shape, p.translation(), -0.3)) << "seed " << seed;
+      }
+    }
+  }
+}
+
+TEST(SimPngTest, SixteenBitRoundTrip) {
+  const std::string path = TempDir("png") + "/d.png";
+  std::vector<uint16_t> px(7 * 5);
+  for (size_t i = 0; i < px.size(); ++i) px[i] = static_cast<uint16_t>(i * 1871 + 3);
+  px[0] = 0;
+  px[1] = 65535;
+  ASSERT_TRUE(WritePng16(path, 7, 5, px).ok());
+  const auto back = ReadPng16(path);
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(back->width, 7);
+  EXPECT_EQ(back->height, 5);
+  EXPECT_EQ(back->pixels, px);
+  EXPECT_FALSE(ReadPng16(path + ".missing").ok());
+  EXPECT_EQ(DepthToMillimetres({0.0f, 1.2344f, 70.0f, std::nanf("")}),
+            (std::vector<uint16_t>{0, 1234, 0, 0}));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Command line
+
+struct CliResult {
+  int code;
+  std::string out, err;
+};
+
+CliResult Cli(std::vector<std::string> args) {
+  args.insert(args.begin(), "rim_sim");
+  std::vector<const char*> argv;
+  for (const std::string& a : args) argv.push_back(a.c_str());
+  std::ostringstream out, err;
+  const int code = RunSimCli(static_cast<int>(argv.size()), argv.data(), out, err);
+  return {code, out.str(), err.str()};
+}
+
+TEST(SimCliTest, BadArgumentsFailWithAMessage) {
+  const std::string dir = TempDir("cli_bad");
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--scene", "forest", "--out", dir}, "unknown --scene 'forest'"},
+      {{"--scene", "city", "--out", dir, "--frames", "-5"}, "--frames must be"},
+      {{"--out", dir, "--frames", "0"}, "--frames must be"},
+      {{"--out", dir, "--frames", "ten"}, "--frames must be"},
+      {{"--out", dir, "--noise", "-0.1"}, "--noise must be"},
+      {{"--out", dir, "--noise", "nan"}, "--noise must be"},
+      {{"--out", dir, "--walkers", "-1"}, "--walkers must be"},
+      {{"--out", dir, "--seed", "-3"}, "--seed must be"},
+      {{"--out", dir, "--step", "0"}, "--step must be"},
+      {{"--out", dir, "--threads", "0"}, "--threads must be"},
+      {{"--scene", "city"}, "--out DIR is required"},
+      {{"--out", dir, "--frames"}, "--frames needs a value"},
+      {{"--out", dir, "--bogus", "1"}, "unknown flag '--bogus'"},
+      {{"--out", dir, "stray"}, "unexpected argument 'stray'"},
+      {{"--out", dir, "--seed", "1", "--seed", "2"}, "--seed given more than once"},
+      {{"--scene", "room", "--out", dir, "--walkers", "3"},
+       "--walkers only applies to --scene city"},
+  };
+  for (const auto& [args, message] : cases) {
+    const CliResult r = Cli(args);
+    EXPECT_EQ(r.code, 2) << message;
+    EXPECT_NE(r.err.find(message), std::string::npos) << "stderr: " << r.err;
+    EXPECT_NE(r.err.find("rim_sim: error: "), std::string::npos);
+  }
+  EXPECT_TRUE(std::filesystem::is_empty(dir)) << "a usage error writes nothing";
+}
+
+TEST(SimCliTest, HelpAndSuccess) {
+  const CliResult help = Cli({"--help"});
+  EXPECT_EQ(help.code, 0);
+  EXPECT_NE(help.out.find("usage: rim_sim --scene city --out DIR"), std::string::npos);
+
+  const std::string dir = TempDir("cli_ok");
+  const CliResult ok =
+      Cli({"--scene=city", "--out=" + dir, "--frames", "1", "--columns", "90", "--gt-margin", "5",
+           "--seed", "4", "--walkers", "2", "--noise", "0.01"});
+  EXPECT_EQ(ok.code, 0) << ok.err;
+  EXPECT_NE(ok.out.find("wrote 1 LiDAR frames"), std::string::npos) << ok.out;
+  EXPECT_TRUE(std::filesystem::exists(ScanPath(dir, 0)));
+  EXPECT_NE(ReadFile(dir + "/scene.json").find("\"seed\": 4"), std::string::npos);
+
+  // An output path under a regular file cannot be created: a runtime error, exit 1.
+  const CliResult bad = Cli({"--out", dir + "/gt.ply/sub", "--frames", "1", "--columns", "90"});
+  EXPECT_EQ(bad.code, 1);
+  EXPECT_NE(bad.err.find("gt.ply"), std::string::npos) << bad.err;
+}
+
+}  // namespace
+}  // namespace rim::sim
