@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Real LiDAR: rim_map over the hku_campus walk (80 scans) with the campus preset. It must finish,
+# produce a mesh, and keep memory flat: RSS minus the global map (which grows with the area
+# walked) may not grow by more than 96 MB from frame 10 to the end.
+# Usage: campus.sh BUILD_DIR [WORK_DIR]. Skips (exit 0 with a message) when the data is absent.
+set -euo pipefail
+BUILD="$(cd "$1" && pwd)"
+WORK="${2:-$(mktemp -d)}"
+DATA="${RIM_HKU_CAMPUS:-}"
+if [ -z "$DATA" ] || [ ! -d "$DATA/scans" ]; then
+  echo "SKIP: hku_campus data not found (set RIM_HKU_CAMPUS to the folder with scans/ and poses.txt)"
+  exit 0
+fi
+"$BUILD/clients/rim_map" "$DATA" --preset campus --out "$WORK/map"
+python3 - "$WORK/map/timing.json" "$WORK/map/mesh.ply" <<'PY'
+import json, os, sys
+t = json.load(open(sys.argv[1]))
+rss, sub = t["rss_mb_per_frame"], t["submap_mb_per_frame"]
+base = [r - s for r, s in zip(rss, sub)]
+growth = max(base[10:]) - base[10]
+size = os.path.getsize(sys.argv[2])
+print(f"campus: {t['frames']:.0f} frames, {t['ms_per_frame']:.0f} ms/frame, peak RSS "
+      f"{t['peak_rss_mb']:.0f} MB, global map {sub[-1]:.0f} MB, RSS minus map grew {growth:.0f} MB, "
+      f"mesh {size / 1e6:.1f} MB")
+ok = t["frames"] == 80 and size > 1e6 and growth < 96
+print("PASS" if ok else "FAIL")
+sys.exit(0 if ok else 1)
+PY
