@@ -1,6 +1,8 @@
 // rim_eval PRED.ply GT.ply [--json]: mesh accuracy against a ground truth (DESIGN.md §4.3).
 // Prints Acc, Comp, Chamfer-L1 (cm) and precision, recall, F-score (%), with the drop and the cap
 // of the paper's protocol ("standard") and without them ("strict"), as a table or as JSON.
+// A PLY without faces (e.g. rim_sim's gt_observed.ply) is taken as a point cloud: its vertices are
+// used as they are instead of area samples ("gt_kind": "points").
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -22,6 +24,8 @@ namespace {
 
 using rim::eval::EvalOptions;
 using rim::eval::EvalResult;
+using rim::eval::InputKind;
+using rim::eval::InputKindName;
 using rim::eval::Metrics;
 
 constexpr char kUsage[] =
@@ -34,7 +38,10 @@ constexpr char kUsage[] =
     "  --voxel M      voxel-averaging size in metres, 0 to disable (default 0.01)\n"
     "  --no-crop      do not crop the prediction to the GT bounding box\n"
     "  --region x0,y0,z0,x1,y1,z1\n"
-    "                 evaluate only inside this box: both meshes are clipped to it first\n";
+    "                 evaluate only inside this box: both meshes are clipped to it first\n"
+    "                 (a point cloud keeps its points inside it)\n"
+    "A PLY without faces is a point cloud: its vertices are used as they are (voxel-averaged, not\n"
+    "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.\n";
 
 struct Args {
   std::string pred_path, gt_path;
@@ -158,17 +165,23 @@ std::string MetricsJson(const Metrics& m) {
                       ", \"fscore_pct\": ", JsonNumber(100 * m.fscore, 3), "}");
 }
 
+// A point cloud has no area: null.
+std::string AreaJson(InputKind kind, double area_m2) {
+  return kind == InputKind::kPoints ? "null" : JsonNumber(area_m2, 4);
+}
+
 std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
   const EvalOptions& o = args.options;
   return absl::StrCat(
       "{\n  \"prediction\": ", JsonString(args.pred_path),
-      ",\n  \"ground_truth\": ", JsonString(args.gt_path),
+      ",\n  \"ground_truth\": ", JsonString(args.gt_path), ",\n  \"pred_kind\": \"",
+      InputKindName(r.pred_kind), "\", \"gt_kind\": \"", InputKindName(r.gt_kind), "\"",
       ",\n  \"standard\": ", MetricsJson(r.standard), ",\n  \"strict\": ", MetricsJson(r.strict),
       ",\n  \"points\": {\"pred_samples\": ", r.pred_samples, ", \"gt_samples\": ", r.gt_samples,
       ", \"pred\": ", r.pred_points, ", \"gt\": ", r.gt_points,
       ", \"pred_dropped\": ", r.pred_dropped, ", \"gt_capped\": ", r.gt_capped, "}",
-      ",\n  \"area_m2\": {\"pred\": ", JsonNumber(r.pred_area_m2, 4),
-      ", \"gt\": ", JsonNumber(r.gt_area_m2, 4), "}",
+      ",\n  \"area_m2\": {\"pred\": ", AreaJson(r.pred_kind, r.pred_area_m2),
+      ", \"gt\": ", AreaJson(r.gt_kind, r.gt_area_m2), "}",
       ",\n  \"protocol\": {\"samples\": ", o.samples,
       ", \"voxel_cm\": ", JsonNumber(100 * o.voxel_m, 3),
       ", \"drop_cm\": ", JsonNumber(100 * o.drop_m, 3),
@@ -193,13 +206,20 @@ std::string TableRow(const char* name, const Metrics& m) {
 std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
   const EvalOptions& o = args.options;
   auto pct = [](int64_t part, int64_t whole) { return 100.0 * part / std::max<int64_t>(whole, 1); };
-  std::string out =
-      absl::StrCat("prediction:   ", args.pred_path, "\nground truth: ", args.gt_path, "\n");
+  auto kind = [](InputKind k) { return k == InputKind::kPoints ? " (point cloud)" : " (mesh)"; };
+  // "N on A m^2" for a sampled mesh, "N points as given" for a point cloud.
+  auto source = [](InputKind k, int64_t samples, double area_m2) {
+    return k == InputKind::kPoints ? absl::StrFormat("%d points as given", samples)
+                                   : absl::StrFormat("%d on %.2f m^2", samples, area_m2);
+  };
+  std::string out = absl::StrCat("prediction:   ", args.pred_path, kind(r.pred_kind),
+                                 "\nground truth: ", args.gt_path, kind(r.gt_kind), "\n");
   absl::StrAppendFormat(&out,
-                        "samples: pred %d on %.2f m^2 -> %d points, GT %d on %.2f m^2 -> %d "
-                        "points (%g cm voxel averaging)\n",
-                        r.pred_samples, r.pred_area_m2, r.pred_points, r.gt_samples, r.gt_area_m2,
-                        r.gt_points, 100 * o.voxel_m);
+                        "samples: pred %s -> %d points, GT %s -> %d points (%g cm voxel "
+                        "averaging)\n",
+                        source(r.pred_kind, r.pred_samples, r.pred_area_m2), r.pred_points,
+                        source(r.gt_kind, r.gt_samples, r.gt_area_m2), r.gt_points,
+                        100 * o.voxel_m);
   absl::StrAppend(&out,
                   "\n            Acc [cm]  Comp [cm]  C-L1 [cm]   Prec [%]    Rec [%]      F [%]\n",
                   TableRow("standard", r.standard), TableRow("strict", r.strict), "\n");

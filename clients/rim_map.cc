@@ -142,23 +142,16 @@ absl::Status Run(const Args& args) {
     RIM_ASSIGN_OR_RETURN(PosedScan scan, dataset->Read(size_t(i)));
     StageTimings t;
     RIM_RETURN_IF_ERROR(mapper->IntegrateScan(scan, -1, &t));
-    sum.slide_s += t.slide_s;
-    sum.preprocess_s += t.preprocess_s;
-    sum.sample_s += t.sample_s;
-    sum.encode_s += t.encode_s;
-    sum.forward_s += t.forward_s;
-    sum.backward_s += t.backward_s;
-    sum.step_s += t.step_s;
-    sum.total_s += t.total_s;
-    sum.iterations += t.iterations;
+    sum += t;
     rss_mb.push_back(CurrentRssMb());
     submap_mb.push_back(double(mapper->Stats().submap_bytes) / (1024.0 * 1024.0));
     ms_per_frame.push_back(1e3 * t.total_s);
-    ProgressBar(size_t(i - first + 1), size_t(last - first), 1e3 * sum.total_s / double(i - first + 1),
-                t.loss);
+    ProgressBar(size_t(i - first + 1), size_t(last - first),
+                1e3 * sum.total_s / double(i - first + 1), t.loss);
   }
   std::fprintf(stderr, "\n");
-  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   // Mesh every tile and weld the shared border vertices.
   const auto mesh_start = std::chrono::steady_clock::now();
@@ -174,7 +167,8 @@ absl::Status Run(const Args& args) {
   }
   merged = WeldIdenticalVertices(merged);
   RIM_RETURN_IF_ERROR(WriteMeshPly(args.out + "/mesh.ply", merged));
-  const double mesh_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - mesh_start).count();
+  const double mesh_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - mesh_start).count();
 
   const double frames = double(last - first);
   const double iters = std::max(1, sum.iterations);
@@ -183,14 +177,15 @@ absl::Status Run(const Args& args) {
     double seconds;
     bool per_iteration;
   };
-  const Row rows[] = {{"slide", sum.slide_s, false},       {"preprocess", sum.preprocess_s, false},
-                      {"sample", sum.sample_s, true},      {"encode", sum.encode_s, true},
-                      {"forward", sum.forward_s, true},    {"backward", sum.backward_s, true},
+  const Row rows[] = {{"slide", sum.slide_s, false},    {"preprocess", sum.preprocess_s, false},
+                      {"sample", sum.sample_s, true},   {"encode", sum.encode_s, true},
+                      {"forward", sum.forward_s, true}, {"backward", sum.backward_s, true},
                       {"step", sum.step_s, true}};
   std::printf("\n%-12s %12s %12s\n", "module", "ms/frame", "ms/iter");
   for (const Row& r : rows) {
     if (r.per_iteration)
-      std::printf("%-12s %12.2f %12.3f\n", r.name, 1e3 * r.seconds / frames, 1e3 * r.seconds / iters);
+      std::printf("%-12s %12.2f %12.3f\n", r.name, 1e3 * r.seconds / frames,
+                  1e3 * r.seconds / iters);
     else
       std::printf("%-12s %12.2f %12s\n", r.name, 1e3 * r.seconds / frames, "-");
   }
@@ -201,19 +196,22 @@ absl::Status Run(const Args& args) {
               merged.faces.size(), mesh_s, args.out.c_str());
 
   std::string timing = "{\n  \"stages_ms_per_frame\": {";
-  for (const Row& r : rows) absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / frames);
+  for (const Row& r : rows)
+    absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / frames);
   timing.resize(timing.size() - 2);
   timing += "},\n  \"stages_ms_per_iteration\": {";
   for (const Row& r : rows)
-    if (r.per_iteration) absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / iters);
+    if (r.per_iteration)
+      absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / iters);
   timing.resize(timing.size() - 2);
-  absl::StrAppendFormat(&timing,
-                        "},\n  \"ms_per_frame\": %.3f,\n  \"frames_per_s\": %.4f,\n  \"frames\": %.0f,\n"
-                        "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
-                        "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n  \"rss_mb_per_frame\": [",
-                        1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames,
-                        PeakRssMb(), mesh_s);
-  for (size_t i = 0; i < rss_mb.size(); ++i) absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
+  absl::StrAppendFormat(
+      &timing,
+      "},\n  \"ms_per_frame\": %.3f,\n  \"frames_per_s\": %.4f,\n  \"frames\": %.0f,\n"
+      "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
+      "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n  \"rss_mb_per_frame\": [",
+      1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames, PeakRssMb(), mesh_s);
+  for (size_t i = 0; i < rss_mb.size(); ++i)
+    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
   // The global map grows with the area explored; RSS minus it should stay flat.
   timing += "],\n  \"submap_mb_per_frame\": [";
   for (size_t i = 0; i < submap_mb.size(); ++i)
@@ -227,17 +225,19 @@ absl::Status Run(const Args& args) {
                     ",\n  \"libtorch_version\": " + JsonString(TorchVersion()) +
                     ",\n  \"dataset\": " + JsonString(args.dataset) +
                     ",\n  \"layout\": " + JsonString(io::LayoutName(dataset->layout())) +
-                    absl::StrFormat(",\n  \"frames\": [%ld, %ld]", first, last) + ",\n  \"config\": {";
+                    absl::StrFormat(",\n  \"frames\": [%ld, %ld]", first, last) +
+                    ",\n  \"config\": {";
   bool first_key = true;
   for (absl::string_view line : absl::StrSplit(config.ToString(), '\n', absl::SkipEmpty())) {
     std::vector<std::string> kv = absl::StrSplit(line, absl::MaxSplits(" = ", 1));
     if (kv.size() != 2) continue;
-    absl::StrAppend(&run, first_key ? "\n    " : ",\n    ", JsonString(kv[0]), ": ", JsonString(kv[1]));
+    absl::StrAppend(&run, first_key ? "\n    " : ",\n    ", JsonString(kv[0]), ": ",
+                    JsonString(kv[1]));
     first_key = false;
   }
   run += "\n  }\n}\n";
-  for (const auto& [name, text] : {std::pair<std::string, std::string>{"timing.json", timing},
-                                   {"run.json", run}}) {
+  for (const auto& [name, text] :
+       {std::pair<std::string, std::string>{"timing.json", timing}, {"run.json", run}}) {
     std::ofstream f(args.out + "/" + name);
     f << text;
     if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/", name));
@@ -255,7 +255,8 @@ int main(int argc, char** argv) {
       std::fputs(rim::kUsage, stdout);
       return 0;
     }
-    std::fprintf(stderr, "rim_map: %s\n%s", std::string(args.status().message()).c_str(), rim::kUsage);
+    std::fprintf(stderr, "rim_map: %s\n%s", std::string(args.status().message()).c_str(),
+                 rim::kUsage);
     return 2;
   }
   const absl::Status s = rim::Run(*args);

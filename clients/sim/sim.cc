@@ -51,15 +51,17 @@ absl::Status WriteGroundTruth(const std::string& dir, const rim::Mesh& gt) {
   return rim::WriteMeshPly(Join(dir, "gt.ply"), gt);
 }
 
-// Averages points per world-aligned voxel (the voxel of p is floor(p / size)). Points are added
-// one at a time, in a fixed order, so the result does not depend on threading. Memory stays within
-// about twice one entry per occupied voxel: the entries are sorted and merged whenever they have
-// doubled since the last merge.
+// Averages points per world-aligned voxel (the voxel of p is floor(p / size)). Points come in
+// batches (a frame each); a batch is sorted by voxel and merged, and the sorted runs are merged
+// like a binary counter (a run is merged into the previous one once it is at least half its size),
+// so all accesses stream through memory and the result, in voxel order, does not depend on the
+// batching or on threading: equal voxels are summed in the order their points came.
 class VoxelAverager {
  public:
   explicit VoxelAverager(double size) : size_(size) {}
 
-  // False (and nothing added) when p is more than 2^20 voxels from the origin along an axis.
+  // Adds a point to the current batch. False (and nothing added) when p is 2^20 voxels or more
+  // from the origin along an axis.
   bool Add(const Vec3& p) {
     Entry e;
     e.key = 0;
@@ -71,26 +73,58 @@ class VoxelAverager {
       *offset[a] = static_cast<float>(p[a] - index * size_);  // in [0, size)
     }
     e.count = 1;
-    entries_.push_back(e);
-    if (entries_.size() >= std::max<size_t>(2 * merged_, 1 << 20)) Merge();
+    batch_.push_back(e);
     return true;
   }
 
-  // The voxel means, in voxel order (x, then y, then z index).
+  // Ends the current batch.
+  void Flush() {
+    if (batch_.empty()) return;
+    std::stable_sort(batch_.begin(), batch_.end(),
+                     [](const Entry& a, const Entry& b) { return a.key < b.key; });
+    std::vector<Entry> run;
+    Combine(batch_, {}, &run);
+    batch_.clear();
+    runs_.push_back(std::move(run));
+    while (runs_.size() >= 2 && 2 * runs_.back().size() >= runs_[runs_.size() - 2].size()) {
+      MergeLastTwo();
+    }
+  }
+
+  // The voxel means, in voxel order (x index, then y, then z). The runs are merged on the fly
+  // (there are only about log2(batches) of them), so no merged copy is made.
   std::vector<std::array<float, 3>> Means() {
-    Merge();
+    Flush();
+    size_t total = 0;
+    for (const auto& run : runs_) total += run.size();
     std::vector<std::array<float, 3>> out;
-    out.reserve(entries_.size());
-    for (const Entry& e : entries_) {
+    out.reserve(total);
+    std::vector<size_t> next(runs_.size(), 0);
+    while (true) {
+      uint64_t key = ~uint64_t{0};
+      for (size_t r = 0; r < runs_.size(); ++r) {
+        if (next[r] < runs_[r].size()) key = std::min(key, runs_[r][next[r]].key);
+      }
+      if (key == ~uint64_t{0}) break;  // keys use 63 bits: this one is never a voxel
+      double sum[3] = {0, 0, 0};
+      uint64_t count = 0;
+      for (size_t r = 0; r < runs_.size(); ++r) {  // earlier runs hold earlier points
+        if (next[r] == runs_[r].size() || runs_[r][next[r]].key != key) continue;
+        const Entry& e = runs_[r][next[r]++];
+        sum[0] += e.x;
+        sum[1] += e.y;
+        sum[2] += e.z;
+        count += e.count;
+      }
       std::array<float, 3> p;
-      const float sum[3] = {e.x, e.y, e.z};
       for (int a = 0; a < 3; ++a) {
         const int64_t index =
-            static_cast<int64_t>((e.key >> (kBits * (2 - a))) & ((1u << kBits) - 1)) - kBias;
-        p[a] = static_cast<float>(index * size_ + sum[a] / e.count);
+            static_cast<int64_t>((key >> (kBits * (2 - a))) & ((uint64_t{1} << kBits) - 1)) - kBias;
+        p[a] = static_cast<float>(index * size_ + sum[a] / static_cast<double>(count));
       }
       out.push_back(p);
     }
+    runs_.clear();
     return out;
   }
 
@@ -103,29 +137,37 @@ class VoxelAverager {
     uint32_t count;
   };
 
-  // Sorts by voxel (stable: equal voxels are summed in the order their points came) and merges.
-  void Merge() {
-    std::stable_sort(entries_.begin(), entries_.end(),
-                     [](const Entry& a, const Entry& b) { return a.key < b.key; });
-    size_t out = 0;
-    for (size_t i = 0; i < entries_.size(); ++out) {
-      Entry sum = entries_[i];
-      for (++i; i < entries_.size() && entries_[i].key == sum.key; ++i) {
-        sum.x += entries_[i].x;
-        sum.y += entries_[i].y;
-        sum.z += entries_[i].z;
-        sum.count += entries_[i].count;
+  // Merges the key-sorted a and b (a's points came first) into *out, summing equal keys.
+  static void Combine(const std::vector<Entry>& a, const std::vector<Entry>& b,
+                      std::vector<Entry>* out) {
+    out->clear();
+    out->reserve(a.size() + b.size());
+    size_t i = 0, j = 0;
+    while (i < a.size() || j < b.size()) {
+      const bool from_a = j == b.size() || (i < a.size() && a[i].key <= b[j].key);
+      const Entry& e = from_a ? a[i++] : b[j++];
+      if (!out->empty() && out->back().key == e.key) {
+        Entry& sum = out->back();
+        sum.x += e.x;
+        sum.y += e.y;
+        sum.z += e.z;
+        sum.count += e.count;
+      } else {
+        out->push_back(e);
       }
-      entries_[out] = sum;
     }
-    entries_.resize(out);
-    entries_.shrink_to_fit();
-    merged_ = out;
+  }
+
+  void MergeLastTwo() {
+    std::vector<Entry> merged;
+    Combine(runs_[runs_.size() - 2], runs_.back(), &merged);
+    runs_.pop_back();
+    runs_.back() = std::move(merged);
   }
 
   double size_;
-  std::vector<Entry> entries_;
-  size_t merged_ = 0;
+  std::vector<Entry> batch_;
+  std::vector<std::vector<Entry>> runs_;
 };
 
 absl::Status OutOfVoxelRange(const Vec3& p) {
@@ -198,6 +240,7 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
       if (t.primitive >= num_static || !InObservedBox(t.world, sensor, o.observed_box)) continue;
       if (!observed.Add(t.world)) return OutOfVoxelRange(t.world);
     }
+    observed.Flush();
   }
   const std::vector<std::array<float, 3>> observed_points = observed.Means();
   summary.observed_points = observed_points.size();
@@ -277,9 +320,9 @@ Layout: KITTI odometry.
                        inscribed polyhedra within %.6g m of the true shape; footprints of solids
                        are cut out of the ground and of roofs, and faces inside solids are dropped.
   gt_observed.ply      the surface the LiDAR actually saw, as a point cloud (binary PLY, float
-                       x, y, z, world frame, no faces): every return's noise-free hit on the static
-                       scene (walkers left out, even with range noise) that lies in its frame's
-                       local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
+                       x, y, z, world frame, no faces): the exact, noise-free hit of every return
+                       on the static scene (returns from walkers left out) that lies in its
+                       frame's local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
                        sz %+.6g <= z < sz %+.6g m about the sensor position (sx, sy, sz), world
                        axes; all frames merged and averaged per %.6g m world-aligned voxel.
   scene.json           the generation parameters.
@@ -325,6 +368,7 @@ absl::StatusOr<SimSummary> RunRoom(const SimOptions& o) {
     for (const SensorTruth& t : truth) {
       if (!observed.Add(t.world)) return OutOfVoxelRange(t.world);
     }
+    observed.Flush();
     for (uint16_t v : mm) summary.points += v != 0;
     const std::string stem = Join(o.out_dir, absl::StrFormat("frame-%06d", k));
     RIM_RETURN_IF_ERROR(WritePng16(stem + ".depth.png", camera.width, camera.height, mm));
@@ -467,8 +511,7 @@ cloud without faces):
   --threads T        worker threads (default: all cores); the output does not depend on it
 
 Files that an earlier rim_sim run left in DIR (frames, index files, gt.ply, gt_observed.ply) are
-replaced or
-removed; nothing else in DIR is touched.
+replaced or removed; nothing else in DIR is touched.
 )";
 }
 
@@ -493,9 +536,8 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
       arg = arg.substr(0, eq);
     } else {
       static const std::set<std::string> kKnown = {
-          "--scene", "--out",     "--frames",    "--noise",        "--walkers",
-          "--seed",  "--step",    "--columns",   "--gt-margin",    "--observed-box",
-          "--threads"};
+          "--scene", "--out",     "--frames",    "--noise",        "--walkers", "--seed",
+          "--step",  "--columns", "--gt-margin", "--observed-box", "--threads"};
       if (kKnown.count(arg) == 0) {
         return absl::InvalidArgumentError(absl::StrCat("unknown flag '", arg, "'"));
       }

@@ -40,11 +40,11 @@ struct SimOptions {
   double noise = 0.0;  // Gaussian range (city) or depth (room) noise, standard deviation in m
   int walkers = 0;     // city only
   uint64_t seed = 1;
-  double step = 0.0;      // metres per frame; 0 picks the scene's default (city 1, room 0.1)
-  int columns = 1800;     // city only: LiDAR azimuth steps per revolution
-  double gt_margin = -1;  // city only: gt.ply covers the drive's bounds plus this; <0: max range
+  double step = 0.0;         // metres per frame; 0 picks the scene's default (city 1, room 0.1)
+  int columns = 1800;        // city only: LiDAR azimuth steps per revolution
+  double gt_margin = -1;     // city only: gt.ply covers the drive's bounds plus this; <0: max range
   ObservedBox observed_box;  // city only: what of each frame goes into gt_observed.ply
-  int threads = 0;        // 0: all hardware threads
+  int threads = 0;           // 0: all hardware threads
 };
 
 struct SimSummary {
@@ -53,7 +53,7 @@ struct SimSummary {
   uint64_t gt_vertices = 0;
   uint64_t gt_faces = 0;
   uint64_t observed_points = 0;  // points in gt_observed.ply
-  double seconds = 0.0;  // wall time of the whole run
+  double seconds = 0.0;          // wall time of the whole run
 };
 
 // Generates the dataset into options.out_dir (created if missing). Files an earlier rim_sim run

@@ -81,9 +81,9 @@ absl::Status WriteKittiScan(const std::string& path, const std::vector<LidarPoin
 absl::Status WritePointCloudPly(const std::string& path,
                                 const std::vector<std::array<float, 3>>& points) {
   static_assert(sizeof(std::array<float, 3>) == 12, "points must be 3 packed floats");
-  std::string bytes = absl::StrCat(
-      "ply\nformat binary_little_endian 1.0\nelement vertex ", points.size(),
-      "\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
+  std::string bytes =
+      absl::StrCat("ply\nformat binary_little_endian 1.0\nelement vertex ", points.size(),
+                   "\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
   const size_t header = bytes.size();
   bytes.resize(header + points.size() * 12);
   if (!points.empty()) std::memcpy(&bytes[header], points.data(), points.size() * 12);

@@ -34,6 +34,20 @@ struct StageTimings {
          step_s = 0, total_s = 0;
   int iterations = 0;
   float loss = 0;  // mean over the frame's iterations
+
+  // Adds another frame's times (loss is not summed).
+  StageTimings& operator+=(const StageTimings& o) {
+    slide_s += o.slide_s;
+    preprocess_s += o.preprocess_s;
+    sample_s += o.sample_s;
+    encode_s += o.encode_s;
+    forward_s += o.forward_s;
+    backward_s += o.backward_s;
+    step_s += o.step_s;
+    total_s += o.total_s;
+    iterations += o.iterations;
+    return *this;
+  }
 };
 
 struct QueryResult {

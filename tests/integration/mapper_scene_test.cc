@@ -41,7 +41,6 @@ class MapperSceneTest : public ::testing::Test {
     mapper_ = mapper->release();
     LidarModel lidar;
     const auto poses = testing_support::StraightTrajectory(0.f, 30.f, 31, 1.6f);
-    double total_s = 0;
     StageTimings sum;
     for (size_t i = 0; i < poses.size(); ++i) {
       PosedScan scan;
@@ -51,20 +50,13 @@ class MapperSceneTest : public ::testing::Test {
       StageTimings t;
       absl::Status s = mapper_->IntegrateScan(scan, -1, &t);
       ASSERT_TRUE(s.ok()) << s;
-      total_s += t.total_s;
-      sum.slide_s += t.slide_s;
-      sum.preprocess_s += t.preprocess_s;
-      sum.sample_s += t.sample_s;
-      sum.encode_s += t.encode_s;
-      sum.forward_s += t.forward_s;
-      sum.backward_s += t.backward_s;
-      sum.step_s += t.step_s;
+      sum += t;
     }
     const double k = 1e3 / poses.size();
     std::printf(
         "integrated %zu frames, %.0f ms/frame (slide %.1f, preprocess %.1f, sample %.1f, encode "
         "%.1f, forward %.1f, backward %.1f, step %.1f)\n",
-        poses.size(), k * total_s, k * sum.slide_s, k * sum.preprocess_s, k * sum.sample_s,
+        poses.size(), k * sum.total_s, k * sum.slide_s, k * sum.preprocess_s, k * sum.sample_s,
         k * sum.encode_s, k * sum.forward_s, k * sum.backward_s, k * sum.step_s);
   }
   static void TearDownTestSuite() {

@@ -298,6 +298,130 @@ TEST(MeshEvalTest, EmptyOrInvalidInputsAreErrors) {
   EXPECT_FALSE(ValidateEvalOptions(options).ok());
 }
 
+// --- Point clouds (a Mesh with vertices and no faces)
+// ---------------------------------------------
+
+// A point cloud on the plane z = `z` over [x0, x1] x [y0, y1]: a grid `spacing` apart, offset by
+// half a spacing, so that with a spacing dividing 1 cm every 1 cm voxel averages to its centre.
+Mesh GridCloudZ(float z, float x0, float x1, float y0, float y1, float spacing) {
+  Mesh cloud;
+  const int nx = static_cast<int>(std::lround((x1 - x0) / spacing));
+  const int ny = static_cast<int>(std::lround((y1 - y0) / spacing));
+  for (int i = 0; i < nx; ++i) {
+    for (int j = 0; j < ny; ++j) {
+      cloud.vertices.push_back({x0 + (i + 0.5f) * spacing, y0 + (j + 0.5f) * spacing, z});
+    }
+  }
+  return cloud;
+}
+
+TEST(MeshEvalPointsTest, DensePointGtOfAPlaneAgainstThePlaneIsNearZero) {
+  const Mesh gt_cloud = GridCloudZ(0, 0, 1, 0, 1, 0.0025f);  // 16 points per 1 cm voxel
+  const Mesh plane = PlaneZ(0, 0, 1, 0, 1);
+  // Dense prediction samples (~100 per voxel) also average to near the voxel centres.
+  const auto r = EvaluateMeshes(plane, gt_cloud, SmallOptions(1'000'000));
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->gt_kind, InputKind::kPoints);
+  EXPECT_EQ(r->pred_kind, InputKind::kMesh);
+  EXPECT_STREQ(InputKindName(r->gt_kind), "points");
+  EXPECT_EQ(r->gt_area_m2, 0.0);
+  EXPECT_EQ(r->gt_samples, 400 * 400);  // the points as given, no sampling
+  EXPECT_EQ(r->gt_points, 100 * 100);   // then one per voxel
+  EXPECT_LT(r->standard.accuracy_m, 0.001);
+  EXPECT_LT(r->standard.completeness_m, 0.001);
+  EXPECT_EQ(r->standard.fscore, 1.0);
+  EXPECT_EQ(r->pred_dropped, 0);
+  // The same as the mesh GT it was taken from, to within the averaging jitter.
+  const auto mesh_gt = EvaluateMeshes(plane, plane, SmallOptions(1'000'000));
+  ASSERT_TRUE(mesh_gt.ok()) << mesh_gt.status();
+  EXPECT_EQ(mesh_gt->gt_kind, InputKind::kMesh);
+  EXPECT_NEAR(r->standard.chamfer_l1_m, mesh_gt->standard.chamfer_l1_m, 0.001);
+  // The samples option does not touch a point GT.
+  const auto fewer = EvaluateMeshes(plane, gt_cloud, SmallOptions(500'000));
+  ASSERT_TRUE(fewer.ok());
+  EXPECT_EQ(fewer->gt_samples, r->gt_samples);
+}
+
+TEST(MeshEvalPointsTest, PlaneShiftedBy3cmAgainstAPointGt) {
+  const Mesh gt_cloud = GridCloudZ(0, 0, 2, 0, 2, 0.005f);
+  const auto r = EvaluateMeshes(PlaneZ(0.03f, 0, 2, 0, 2), gt_cloud, SmallOptions(1'000'000));
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->gt_kind, InputKind::kPoints);
+  EXPECT_NEAR(r->standard.accuracy_m, 0.03, 0.002);
+  EXPECT_NEAR(r->standard.completeness_m, 0.03, 0.002);
+  EXPECT_NEAR(r->standard.chamfer_l1_m, 0.03, 0.002);
+  EXPECT_EQ(r->standard.fscore, 1.0);
+  EXPECT_EQ(r->strict.accuracy_m, r->standard.accuracy_m);
+  // Beyond the F-score threshold: 15 cm gives no inliers.
+  const auto far = EvaluateMeshes(PlaneZ(0.15f, 0, 2, 0, 2), gt_cloud, SmallOptions());
+  ASSERT_TRUE(far.ok()) << far.status();
+  EXPECT_NEAR(far->standard.completeness_m, 0.15, 0.002);
+  EXPECT_EQ(far->standard.fscore, 0.0);
+}
+
+TEST(MeshEvalPointsTest, RegionCropKeepsThePointsInside) {
+  const Mesh gt_cloud = GridCloudZ(0, 0, 2, 0, 2, 0.005f);  // 400 x 400 points
+  const std::array<float, 3> lower = {0, 0, -1}, upper = {1, 2, 1};
+  const Mesh cropped = CropMeshToBox(gt_cloud, lower, upper);
+  EXPECT_TRUE(cropped.faces.empty());
+  ASSERT_EQ(cropped.vertices.size(), 200u * 400u);
+  for (const auto& p : cropped.vertices) ASSERT_LE(p[0], 1.0f);
+  // A point exactly on the box is kept; a region above the plane keeps nothing.
+  Mesh edge;
+  edge.vertices = {{1, 1, 0}, {1.0001f, 1, 0}};
+  EXPECT_EQ(CropMeshToBox(edge, lower, upper).vertices.size(), 1u);
+  EXPECT_TRUE(CropMeshToBox(gt_cloud, {0, 0, 0.5f}, {2, 2, 1}).vertices.empty());
+
+  // The prediction covers only x < 1: the full GT finds half of it missing, the region does not.
+  const Mesh pred = PlaneZ(0, 0, 1, 0, 2);
+  const auto full = EvaluateMeshes(pred, gt_cloud, SmallOptions(1'000'000));
+  ASSERT_TRUE(full.ok()) << full.status();
+  EXPECT_NEAR(full->standard.recall, 0.55, 0.01);  // GT points with x < 1.1 are inliers
+  const auto region =
+      EvaluateMeshes(CropMeshToBox(pred, lower, upper), cropped, SmallOptions(1'000'000));
+  ASSERT_TRUE(region.ok()) << region.status();
+  EXPECT_EQ(region->gt_kind, InputKind::kPoints);
+  EXPECT_EQ(region->gt_samples, 200 * 400);
+  EXPECT_EQ(region->standard.recall, 1.0);
+  EXPECT_EQ(region->standard.fscore, 1.0);
+  EXPECT_LT(region->standard.completeness_m, 0.005);
+}
+
+TEST(MeshEvalPointsTest, PointCloudPredictionIsCroppedAndUsedAsGiven) {
+  const Mesh gt = PlaneZ(0, 0, 2, 0, 2);
+  Mesh pred = GridCloudZ(0.03f, 0, 2, 0, 2, 0.005f);
+  const size_t inside = pred.vertices.size();
+  pred.vertices.push_back({1, 1, 3});  // 3 m above the GT box: cropped away
+  const auto r = EvaluateMeshes(pred, gt, SmallOptions(1'000'000));
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->pred_kind, InputKind::kPoints);
+  EXPECT_EQ(r->gt_kind, InputKind::kMesh);
+  EXPECT_EQ(r->pred_samples, static_cast<int64_t>(inside));
+  EXPECT_EQ(r->pred_area_m2, 0.0);
+  EXPECT_NEAR(r->strict.accuracy_m, 0.03, 0.002);
+  EXPECT_NEAR(r->standard.completeness_m, 0.03, 0.002);
+  // Points against points.
+  const auto both = EvaluateMeshes(pred, GridCloudZ(0, 0, 2, 0, 2, 0.005f), SmallOptions());
+  ASSERT_TRUE(both.ok()) << both.status();
+  EXPECT_NEAR(both->standard.chamfer_l1_m, 0.03, 0.001);
+}
+
+TEST(MeshEvalPointsTest, BadPointCloudsAreErrors) {
+  const Mesh gt = GridCloudZ(0, 0, 1, 0, 1, 0.01f);
+  Mesh nan_point = gt;
+  nan_point.vertices[5][2] = NAN;
+  const auto bad_gt = EvaluateMeshes(PlaneZ(0, 0, 1, 0, 1), nan_point, SmallOptions());
+  EXPECT_EQ(bad_gt.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(bad_gt.status().message().find("GT point cloud: point 5"), std::string::npos)
+      << bad_gt.status();
+  EXPECT_EQ(EvaluateMeshes(nan_point, gt, SmallOptions()).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  // A point prediction with nothing inside the padded GT box.
+  const auto outside = EvaluateMeshes(GridCloudZ(5, 0, 1, 0, 1, 0.01f), gt, SmallOptions());
+  EXPECT_EQ(outside.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(outside.status().message().find("GT box"), std::string::npos) << outside.status();
+}
+
 // --- The rim_eval command line -------------------------------------------------------------------
 
 // A minimal JSON syntax check (RFC 8259 grammar, no semantics), enough to catch broken output.
@@ -446,6 +570,48 @@ TEST_F(RimEvalCliTest, PrintsJson) {
     EXPECT_NE(r.out.find(key), std::string::npos) << key << " missing from:\n" << r.out;
   }
   EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+}
+
+// A PLY with a vertex element only: no face element at all.
+void WritePointPly(const std::string& path, const Mesh& cloud) {
+  FILE* f = std::fopen(path.c_str(), "wb");
+  ASSERT_NE(f, nullptr) << path;
+  std::fprintf(f,
+               "ply\nformat binary_little_endian 1.0\nelement vertex %zu\nproperty float x\n"
+               "property float y\nproperty float z\nend_header\n",
+               cloud.vertices.size());
+  std::fwrite(cloud.vertices.data(), 12, cloud.vertices.size(), f);
+  std::fclose(f);
+}
+
+TEST_F(RimEvalCliTest, PointCloudGroundTruth) {
+  const std::string gt_points = ::testing::TempDir() + "/rim_mesh_eval_gt_points.ply";
+  WritePointPly(gt_points, GridCloudZ(0, 0, 2, 0, 2, 0.005f));
+  RunResult r = RunRimEval(pred_ + " " + gt_points + " --json --samples 200000 --threads 1");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
+  EXPECT_NE(r.out.find("\"gt_kind\": \"points\""), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"pred_kind\": \"mesh\""), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"gt\": null"), std::string::npos) << "no GT area: " << r.out;
+  EXPECT_NE(r.out.find("\"gt_samples\": 160000"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+
+  // --region clips the point GT too: half the plane.
+  r = RunRimEval(pred_ + " " + gt_points + " --json --samples 200000 --region 0,0,-1,1,2,1");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("\"gt_samples\": 80000"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"gt_kind\": \"points\""), std::string::npos) << r.out;
+
+  r = RunRimEval(pred_ + " " + gt_points + " --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("ground truth: " + gt_points + " (point cloud)"), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("GT 160000 points as given"), std::string::npos) << r.out;
+
+  // A mesh GT says so.
+  r = RunRimEval(pred_ + " " + gt_ + " --json --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("\"gt_kind\": \"mesh\""), std::string::npos) << r.out;
 }
 
 TEST_F(RimEvalCliTest, FailsClearlyOnBadInput) {

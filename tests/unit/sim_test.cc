@@ -450,7 +450,8 @@ TEST(SimCityTest, SameSeedSameBytesWhateverTheThreadCount) {
   ASSERT_TRUE(RunSim(a).ok());
   ASSERT_TRUE(RunSim(b).ok());
   const auto fa = ReadTree(a.out_dir), fb = ReadTree(b.out_dir);
-  EXPECT_EQ(fa.size(), 3u + 6u);  // 3 scans, poses, calib, times, gt, scene.json, README
+  // 3 scans, poses, calib, times, gt, gt_observed, scene.json, README
+  EXPECT_EQ(fa.size(), 3u + 7u);
   ASSERT_EQ(fa.size(), fb.size());
   for (const auto& [name, bytes] : fa) {
     ASSERT_TRUE(fb.count(name)) << name;
@@ -476,10 +477,10 @@ TEST(SimCityTest, RerunningReplacesThePreviousDataset) {
   // Only the room's 7-Scenes files (and the user's own file) are left.
   std::vector<std::string> names;
   for (const auto& [name, bytes] : ReadTree(dir)) names.push_back(name);
-  EXPECT_EQ(names, (std::vector<std::string>{"README.txt", "camera-intrinsics.txt",
-                                             "frame-000000.depth.png", "frame-000000.pose.txt",
-                                             "frame-000001.depth.png", "frame-000001.pose.txt",
-                                             "gt.ply", "notes.txt", "scene.json"}));
+  EXPECT_EQ(names, (std::vector<std::string>{
+                       "README.txt", "camera-intrinsics.txt", "frame-000000.depth.png",
+                       "frame-000000.pose.txt", "frame-000001.depth.png", "frame-000001.pose.txt",
+                       "gt.ply", "gt_observed.ply", "notes.txt", "scene.json"}));
   EXPECT_FALSE(std::filesystem::exists(dir + "/velodyne"));
   ASSERT_TRUE(RunSim(city).ok());
   EXPECT_FALSE(std::filesystem::exists(dir + "/camera-intrinsics.txt"));
@@ -613,6 +614,143 @@ TEST(SimCityTest, NoiseHasTheRequestedStandardDeviation) {
   EXPECT_NEAR(stddev, 0.05, 0.0025);
 }
 
+// gt_observed.ply as a list of points; checks that it is a binary little-endian PLY with float
+// x, y, z and no face element.
+std::vector<Vec3> ReadObserved(const std::string& dir) {
+  const std::string path = dir + "/gt_observed.ply";
+  const std::string bytes = ReadFile(path);
+  const size_t end = bytes.find("end_header\n");
+  EXPECT_NE(end, std::string::npos) << path;
+  if (end == std::string::npos) return {};
+  const std::string header = bytes.substr(0, end);
+  EXPECT_EQ(header.rfind("ply\nformat binary_little_endian 1.0\nelement vertex ", 0), 0u) << header;
+  EXPECT_NE(header.find("property float x\nproperty float y\nproperty float z\n"),
+            std::string::npos)
+      << header;
+  EXPECT_EQ(header.find("face"), std::string::npos) << "a point cloud has no faces: " << header;
+  const auto cloud = ReadMeshPly(path);
+  EXPECT_TRUE(cloud.ok()) << cloud.status();
+  if (!cloud.ok()) return {};
+  EXPECT_TRUE(cloud->faces.empty());
+  EXPECT_EQ(bytes.size() - end - 11, 12 * cloud->vertices.size());
+  std::vector<Vec3> points;
+  for (const auto& v : cloud->vertices) points.emplace_back(v[0], v[1], v[2]);
+  return points;
+}
+
+// Inside the mapping box about sensor position s, with `slack` to spare for rounding.
+bool InBox(const Vec3& p, const Vec3& s, const ObservedBox& box, double slack) {
+  return std::abs(p.x() - s.x()) < box.hx + slack && std::abs(p.y() - s.y()) < box.hy + slack &&
+         p.z() >= s.z() + box.z_min - slack && p.z() < s.z() + box.z_max + slack;
+}
+
+TEST(SimCityTest, ObservedGroundTruthIsTheNoiseFreeStaticSurfaceInsideTheFrameBoxes) {
+  SimOptions o = SmallCity(TempDir("observed"));
+  o.frames = 4;
+  o.columns = 900;
+  o.walkers = 60;
+  o.noise = 0.05;
+  o.step = 3.0;
+  ASSERT_TRUE(RunSim(o).ok());
+  const std::vector<Vec3> points = ReadObserved(o.out_dir);
+  ASSERT_GT(points.size(), 50000u);
+  const auto gt = ReadMeshPly(o.out_dir + "/gt.ply");
+  ASSERT_TRUE(gt.ok()) << gt.status();
+  const MeshDistance dist(*gt);
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  ASSERT_EQ(poses.size(), 4u);
+  CityOptions co;
+  co.seed = o.seed;
+  co.walkers = o.walkers;
+  const City city = GenerateCity(co);
+  std::vector<std::vector<Primitive>> walkers;
+  for (int k = 0; k < o.frames; ++k) walkers.push_back(WalkersAt(city, k / kFrameRateHz));
+
+  const ObservedBox box;  // the defaults: +-10 m, z -3..+3 m about the sensor
+  int far = 0, outside = 0, on_walkers = 0;
+  double worst = 0;
+  std::vector<int> per_frame(o.frames, 0);
+  for (const Vec3& p : points) {
+    // On the static surface: noise-free (with 5 cm noise in the scans) and no walkers.
+    const double d = dist.Distance(p);
+    worst = std::max(worst, d);
+    far += d >= 0.01;
+    // Inside the mapping box of some frame (1e-4 for the float output and poses.txt's digits).
+    bool inside = false;
+    for (int k = 0; k < o.frames; ++k) {
+      if (InBox(p, poses[k].translation(), box, 1e-4)) {
+        inside = true;
+        ++per_frame[k];
+      }
+    }
+    outside += !inside;
+    bool on_walker = false;
+    for (const auto& frame_walkers : walkers) {
+      for (const Primitive& w : frame_walkers) on_walker = on_walker || Contains(w.shape, p, -0.01);
+    }
+    on_walkers += on_walker && p.z() > 0.05;
+  }
+  EXPECT_EQ(far, 0) << "worst distance to gt.ply " << worst;
+  EXPECT_LT(worst, 0.01);
+  EXPECT_EQ(outside, 0);
+  EXPECT_EQ(on_walkers, 0);
+  for (int k = 0; k < o.frames; ++k) EXPECT_GT(per_frame[k], 10000) << "frame " << k;
+  // The boxes are full: the ground reaches their sides, and there is more than ground.
+  double max_dx = 0;
+  int above_ground = 0;
+  for (const Vec3& p : points) {
+    max_dx = std::max(max_dx, std::abs(p.x() - poses[0].translation().x()));
+    EXPECT_GE(p.z(), -1e-6);
+    above_ground += p.z() > 0.5;
+  }
+  EXPECT_GT(max_dx, 9.5);
+  EXPECT_GT(above_ground, 1000);
+  // ...and the walkers were in view: the scans hit them.
+  int walker_hits = 0;
+  for (int k = 0; k < o.frames; ++k) {
+    for (const LidarPoint& lp : ReadScan(ScanPath(o.out_dir, k))) {
+      const Vec3 w = poses[k] * Vec3(lp.x, lp.y, lp.z);
+      if (!InBox(w, poses[k].translation(), box, 0.0)) continue;
+      for (const Primitive& p : walkers[k]) walker_hits += Contains(p.shape, w, -0.1);
+    }
+  }
+  EXPECT_GT(walker_hits, 100) << "no walker inside the boxes: the test proves nothing";
+
+  // Noise-free: the same file without noise; deterministic whatever the thread count.
+  SimOptions clean = o;
+  clean.out_dir = TempDir("observed_clean");
+  clean.noise = 0.0;
+  clean.threads = 3;
+  ASSERT_TRUE(RunSim(clean).ok());
+  EXPECT_TRUE(ReadFile(o.out_dir + "/gt_observed.ply") ==
+              ReadFile(clean.out_dir + "/gt_observed.ply"));
+  // scene.json reports it.
+  const std::string json = ReadFile(o.out_dir + "/scene.json");
+  EXPECT_NE(json.find(absl::StrCat("\"points\": ", points.size())), std::string::npos) << json;
+  EXPECT_NE(json.find("\"kind\": \"points\""), std::string::npos) << json;
+}
+
+TEST(SimCityTest, ObservedBoxOptionShrinksTheObservedSurface) {
+  SimOptions o = SmallCity(TempDir("observed_box"));
+  o.frames = 2;
+  o.observed_box = {4.0, 6.0, -2.0, 0.5};
+  ASSERT_TRUE(RunSim(o).ok());
+  const std::vector<Vec3> points = ReadObserved(o.out_dir);
+  ASSERT_GT(points.size(), 1000u);
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  for (const Vec3& p : points) {
+    bool inside = false;
+    for (const auto& pose : poses)
+      inside = inside || InBox(p, pose.translation(), o.observed_box, 1e-4);
+    ASSERT_TRUE(inside) << p.transpose();
+  }
+  SimOptions wide = o;
+  wide.out_dir = TempDir("observed_box_wide");
+  wide.observed_box = ObservedBox{};
+  ASSERT_TRUE(RunSim(wide).ok());
+  EXPECT_GT(ReadObserved(wide.out_dir).size(), 2 * points.size());
+}
+
 TEST(SimCityTest, PosesCalibAndTimesParseBack) {
   SimOptions o = SmallCity(TempDir("poses"));
   o.frames = 5;
@@ -705,6 +843,29 @@ TEST(SimRoomTest, DepthPixelsBackProjectOntoTheGroundTruth) {
   }
 }
 
+TEST(SimRoomTest, ObservedPointsLieOnTheGroundTruth) {
+  SimOptions o;
+  o.scene = SceneKind::kRoom;
+  o.out_dir = TempDir("room_observed");
+  o.frames = 3;
+  o.step = 1.0;
+  o.noise = 0.02;
+  ASSERT_TRUE(RunSim(o).ok());
+  const std::vector<Vec3> points = ReadObserved(o.out_dir);
+  ASSERT_GT(points.size(), 50000u);
+  const auto gt = ReadMeshPly(o.out_dir + "/gt.ply");
+  ASSERT_TRUE(gt.ok()) << gt.status();
+  const MeshDistance dist(*gt, 0.25);
+  int far = 0;
+  double worst = 0;
+  for (size_t i = 0; i < points.size(); i += 2) {  // half the points is plenty
+    const double d = dist.Distance(points[i]);
+    worst = std::max(worst, d);
+    far += d >= 0.01;
+  }
+  EXPECT_EQ(far, 0) << "worst " << worst;
+}
+
 TEST(SimRoomTest, RoomHasFurnitureAndAClearPath) {
   for (uint64_t seed : {1, 2, 3}) {
     const Room room = GenerateRoom(seed);
@@ -772,6 +933,13 @@ TEST(SimCliTest, BadArgumentsFailWithAMessage) {
       {{"--out", dir, "--seed", "1", "--seed", "2"}, "--seed given more than once"},
       {{"--scene", "room", "--out", dir, "--walkers", "3"},
        "--walkers only applies to --scene city"},
+      {{"--out", dir, "--observed-box", "10,10,-3"}, "--observed-box must be"},
+      {{"--out", dir, "--observed-box", "0,10,-3,3"}, "--observed-box must be"},
+      {{"--out", dir, "--observed-box", "10,10,3,-3"}, "--observed-box must be"},
+      {{"--out", dir, "--observed-box", "10,x,-3,3"}, "--observed-box must be"},
+      {{"--out", dir, "--observed-box=10,10,-3,inf"}, "--observed-box must be"},
+      {{"--scene", "room", "--out", dir, "--observed-box", "1,1,-1,1"},
+       "--observed-box only applies to --scene city"},
   };
   for (const auto& [args, message] : cases) {
     const CliResult r = Cli(args);
@@ -795,6 +963,14 @@ TEST(SimCliTest, HelpAndSuccess) {
   EXPECT_NE(ok.out.find("wrote 1 LiDAR frames"), std::string::npos) << ok.out;
   EXPECT_TRUE(std::filesystem::exists(ScanPath(dir, 0)));
   EXPECT_NE(ReadFile(dir + "/scene.json").find("\"seed\": 4"), std::string::npos);
+  EXPECT_NE(ok.out.find("gt_observed.ply ("), std::string::npos) << ok.out;
+
+  const CliResult boxed = Cli({"--out", dir, "--frames", "1", "--columns", "90", "--gt-margin", "5",
+                               "--observed-box", "4,5.5,-1.5,0.5"});
+  EXPECT_EQ(boxed.code, 0) << boxed.err;
+  EXPECT_NE(ReadFile(dir + "/scene.json").find("\"hx_m\": 4, \"hy_m\": 5.5, \"z_min_m\": -1.5"),
+            std::string::npos)
+      << ReadFile(dir + "/scene.json");
 
   // An output path under a regular file cannot be created: a runtime error, exit 1.
   const CliResult bad = Cli({"--out", dir + "/gt.ply/sub", "--frames", "1", "--columns", "90"});

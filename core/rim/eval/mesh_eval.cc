@@ -76,6 +76,46 @@ absl::StatusOr<std::vector<Triangle>> ToTriangles(const Mesh& mesh, const char* 
   return tris;
 }
 
+// A point cloud is a mesh with vertices and no faces.
+bool IsPointCloud(const Mesh& mesh) { return mesh.faces.empty() && !mesh.vertices.empty(); }
+
+absl::StatusOr<std::vector<Point3f>> ToPoints(const Mesh& cloud, const char* name) {
+  for (size_t v = 0; v < cloud.vertices.size(); ++v) {
+    const Point3f& p = cloud.vertices[v];
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      return absl::InvalidArgumentError(
+          absl::StrCat(name, " point cloud: point ", v, " is not finite"));
+    }
+  }
+  return cloud.vertices;
+}
+
+bool InBox(const Point3f& p, const Box& box) {
+  return p[0] >= box[0][0] && p[0] <= box[1][0] && p[1] >= box[0][1] && p[1] <= box[1][1] &&
+         p[2] >= box[0][2] && p[2] <= box[1][2];
+}
+
+std::vector<Point3f> CropPoints(const std::vector<Point3f>& points, const Box& box) {
+  std::vector<Point3f> out;
+  for (const Point3f& p : points) {
+    if (InBox(p, box)) out.push_back(p);
+  }
+  return out;
+}
+
+Box PointBoundingBox(const std::vector<Point3f>& points) {
+  Box box;
+  box[0].fill(std::numeric_limits<float>::infinity());
+  box[1].fill(-std::numeric_limits<float>::infinity());
+  for (const Point3f& p : points) {
+    for (int a = 0; a < 3; ++a) {
+      box[0][a] = std::min(box[0][a], p[a]);
+      box[1][a] = std::max(box[1][a], p[a]);
+    }
+  }
+  return box;
+}
+
 Box BoundingBox(const std::vector<Triangle>& tris) {
   Box box;
   box[0].fill(std::numeric_limits<float>::infinity());
@@ -292,6 +332,8 @@ Metrics ComputeMetrics(const std::vector<float>& pred_to_gt, const std::vector<f
 
 }  // namespace
 
+const char* InputKindName(InputKind kind) { return kind == InputKind::kPoints ? "points" : "mesh"; }
+
 absl::Status ValidateEvalOptions(const EvalOptions& o) {
   auto bad = [](const char* field, const std::string& why) {
     return absl::InvalidArgumentError(absl::StrCat("EvalOptions.", field, " ", why));
@@ -318,6 +360,11 @@ absl::Status ValidateEvalOptions(const EvalOptions& o) {
 
 Mesh CropMeshToBox(const Mesh& mesh, const std::array<float, 3>& lower,
                    const std::array<float, 3>& upper) {
+  if (mesh.faces.empty()) {
+    Mesh out;
+    out.vertices = CropPoints(mesh.vertices, {lower, upper});
+    return out;
+  }
   std::vector<Triangle> tris;
   for (const auto& f : mesh.faces) {
     if (f[0] < mesh.vertices.size() && f[1] < mesh.vertices.size() && f[2] < mesh.vertices.size()) {
@@ -337,32 +384,60 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
                                           const EvalOptions& options) {
   RIM_RETURN_IF_ERROR(ValidateEvalOptions(options));
   const int threads = options.threads;
-  RIM_ASSIGN_OR_RETURN(std::vector<Triangle> gt_tris, ToTriangles(gt, "GT"));
-  RIM_ASSIGN_OR_RETURN(std::vector<Triangle> pred_tris, ToTriangles(pred, "prediction"));
-  if (gt_tris.empty()) return absl::InvalidArgumentError("GT mesh has no triangles");
+  EvalResult result;
+  result.gt_kind = IsPointCloud(gt) ? InputKind::kPoints : InputKind::kMesh;
+  result.pred_kind = IsPointCloud(pred) ? InputKind::kPoints : InputKind::kMesh;
+  // Exactly one of each pair is used, as the kind says.
+  std::vector<Triangle> gt_tris, pred_tris;
+  std::vector<Point3f> gt_points, pred_points;
+  if (result.gt_kind == InputKind::kPoints) {
+    RIM_ASSIGN_OR_RETURN(gt_points, ToPoints(gt, "GT"));
+  } else {
+    RIM_ASSIGN_OR_RETURN(gt_tris, ToTriangles(gt, "GT"));
+    if (gt_tris.empty())
+      return absl::InvalidArgumentError("GT mesh has no triangles and no points");
+  }
+  if (result.pred_kind == InputKind::kPoints) {
+    RIM_ASSIGN_OR_RETURN(pred_points, ToPoints(pred, "prediction"));
+  } else {
+    RIM_ASSIGN_OR_RETURN(pred_tris, ToTriangles(pred, "prediction"));
+  }
 
   // Step 1.
-  const Box gt_box = BoundingBox(gt_tris);
+  const Box gt_box =
+      result.gt_kind == InputKind::kPoints ? PointBoundingBox(gt_points) : BoundingBox(gt_tris);
   if (options.crop_to_gt) {
     Box padded = gt_box;
     for (int a = 0; a < 3; ++a) {
       padded[0][a] -= static_cast<float>(options.crop_margin_m);
       padded[1][a] += static_cast<float>(options.crop_margin_m);
     }
-    pred_tris = CropTriangles(pred_tris, padded);
+    if (result.pred_kind == InputKind::kPoints) {
+      pred_points = CropPoints(pred_points, padded);
+    } else {
+      pred_tris = CropTriangles(pred_tris, padded);
+    }
   }
 
-  // Steps 2–3. Different streams, so that a mesh against itself is not sampled identically.
-  EvalResult result;
-  std::vector<Point3f> gt_points =
-      SampleTriangles(gt_tris, options.samples, options.seed, 1, threads, &result.gt_area_m2);
-  if (gt_points.empty()) return absl::InvalidArgumentError("GT mesh has no area");
-  std::vector<Point3f> pred_points =
-      SampleTriangles(pred_tris, options.samples, options.seed, 0, threads, &result.pred_area_m2);
-  if (pred_points.empty()) {
+  // Steps 2–3. Different streams, so that a mesh against itself is not sampled identically. A
+  // point cloud is taken as it is.
+  if (result.gt_kind == InputKind::kMesh) {
+    gt_points =
+        SampleTriangles(gt_tris, options.samples, options.seed, 1, threads, &result.gt_area_m2);
+    if (gt_points.empty()) return absl::InvalidArgumentError("GT mesh has no area");
+  }
+  if (result.pred_kind == InputKind::kMesh) {
+    pred_points =
+        SampleTriangles(pred_tris, options.samples, options.seed, 0, threads, &result.pred_area_m2);
+    if (pred_points.empty()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "prediction mesh has no area", options.crop_to_gt ? " inside the (padded) GT box" : "",
+          ": ", pred.faces.size(), " triangles before cropping"));
+    }
+  } else if (pred_points.empty()) {
     return absl::InvalidArgumentError(absl::StrCat(
-        "prediction mesh has no area", options.crop_to_gt ? " inside the (padded) GT box" : "",
-        ": ", pred.faces.size(), " triangles before cropping"));
+        "prediction point cloud has no points inside the (padded) GT box: ", pred.vertices.size(),
+        " points before cropping"));
   }
   result.gt_samples = static_cast<int64_t>(gt_points.size());
   result.pred_samples = static_cast<int64_t>(pred_points.size());

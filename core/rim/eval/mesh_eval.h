@@ -7,6 +7,11 @@
 //  5. drop prediction→GT distances >= drop_m, cap GT→prediction distances at cap_m,
 //  6. precision / recall / F-score at fscore_m.
 // The "strict" metrics repeat 5–6 without the drop and the cap, so that floaters count.
+//
+// Either input may be a point cloud instead of a mesh: a Mesh with vertices and no faces (e.g.
+// rim_sim's gt_observed.ply, the surface its sensor actually saw). Its vertices are then the
+// points of step 2 as they are (no area sampling); cropping keeps the points inside the box, and
+// steps 3–6 are unchanged.
 #pragma once
 
 #include <array>
@@ -47,14 +52,20 @@ struct Metrics {
   double fscore = 0;          // 2PR / (P + R), 0 when P + R = 0
 };
 
+// What an input was taken as: a triangle mesh, or a point cloud (vertices and no faces).
+enum class InputKind { kMesh, kPoints };
+const char* InputKindName(InputKind kind);  // "mesh" or "points"
+
 struct EvalResult {
-  Metrics standard;         // with the drop and the cap (the paper's numbers)
-  Metrics strict;           // without them
-  double pred_area_m2 = 0;  // after cropping
+  Metrics standard;  // with the drop and the cap (the paper's numbers)
+  Metrics strict;    // without them
+  InputKind pred_kind = InputKind::kMesh;
+  InputKind gt_kind = InputKind::kMesh;
+  double pred_area_m2 = 0;  // after cropping; 0 for a point cloud
   double gt_area_m2 = 0;
-  int64_t pred_samples = 0;  // sampled, before voxel averaging
-  int64_t gt_samples = 0;
-  int64_t pred_points = 0;  // after voxel averaging: the points the metrics are over
+  int64_t pred_samples = 0;  // sampled (a point cloud: its points, after cropping), before voxel
+  int64_t gt_samples = 0;    // averaging
+  int64_t pred_points = 0;   // after voxel averaging: the points the metrics are over
   int64_t gt_points = 0;
   int64_t pred_dropped = 0;  // prediction points left out of the standard metrics
   int64_t gt_capped = 0;     // GT points whose distance the standard metrics cap
@@ -63,15 +74,18 @@ struct EvalResult {
 // Checks every field, naming the bad one.
 absl::Status ValidateEvalOptions(const EvalOptions& options);
 
-// Evaluates `pred` against `gt`. Errors (InvalidArgument) for bad options, face indices out of
-// range, non-finite vertices, a GT without area, and a prediction without area inside the padded
-// GT box: an empty prediction has no defined accuracy, and a script must not mistake it for a
-// number.
+// Evaluates `pred` against `gt`; either may be a point cloud (vertices, no faces). Errors
+// (InvalidArgument) for bad options, face indices out of range, non-finite vertices (of a point
+// cloud: any vertex; of a mesh: those faces use), a GT without area or points, and a prediction
+// without area or points inside the padded GT box: an empty prediction has no defined accuracy,
+// and a script must not mistake it for a number.
 absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
                                           const EvalOptions& options);
 
-// The cropping of step 1, exposed for tests: triangles are clipped exactly to the box [lower,
-// upper] (a triangle across a face keeps only its part inside), returned as a triangle soup.
+// The cropping of step 1, exposed for tests and for rim_eval's --region: triangles are clipped
+// exactly to the box [lower, upper] (a triangle across a face keeps only its part inside),
+// returned as a triangle soup. A point cloud (no faces) keeps its vertices inside the box
+// (bounds included), in their order.
 Mesh CropMeshToBox(const Mesh& mesh, const std::array<float, 3>& lower,
                    const std::array<float, 3>& upper);
 
