@@ -5,7 +5,13 @@
 # Usage: campus.sh BUILD_DIR [WORK_DIR]. Skips (exit 0 with a message) when the data is absent.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
-WORK="${2:-$(mktemp -d)}"
+if [ -n "${2:-}" ]; then
+  WORK="$2"
+else
+  WORK="$(mktemp -d)"
+  # A scratch folder of our own: removed on exit unless RIM_KEEP_TEST_DIRS is set.
+  [ -n "${RIM_KEEP_TEST_DIRS:-}" ] || trap 'rm -rf "$WORK"' EXIT
+fi
 DATA="${RIM_HKU_CAMPUS:-}"
 if [ -z "$DATA" ] || [ ! -d "$DATA/scans" ]; then
   echo "SKIP: hku_campus data not found (set RIM_HKU_CAMPUS to the folder with scans/ and poses.txt)"

@@ -4,7 +4,13 @@
 # Usage: offline_city.sh BUILD_DIR [WORK_DIR]
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
-WORK="${2:-$(mktemp -d)}"
+if [ -n "${2:-}" ]; then
+  WORK="$2"
+else
+  WORK="$(mktemp -d)"
+  # A scratch folder of our own: removed on exit unless RIM_KEEP_TEST_DIRS is set.
+  [ -n "${RIM_KEEP_TEST_DIRS:-}" ] || trap 'rm -rf "$WORK"' EXIT
+fi
 FRAMES="${RIM_E2E_FRAMES:-40}"
 
 "$BUILD/clients/rim_sim" --scene city --out "$WORK/city" --frames "$FRAMES" --seed 3

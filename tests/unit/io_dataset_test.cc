@@ -18,18 +18,14 @@
 #include "rim/io/ply_points.h"
 #include "rim/io/png_io.h"
 #include "rim/io/pose_file.h"
+#include "support/temp_dir.h"
 
 namespace rim::io {
 namespace {
 
 using ::testing::HasSubstr;
 
-std::string TempDir() {
-  std::string tmpl = ::testing::TempDir() + "/rim_io_dataset_XXXXXX";
-  const char* dir = mkdtemp(tmpl.data());
-  EXPECT_NE(dir, nullptr);
-  return tmpl;
-}
+std::string TempDir() { return rim::testing_support::MakeTempDir("rim_io_dataset"); }
 
 std::string SubDir(const std::string& dir, const std::string& name) {
   const std::string path = dir + "/" + name;

@@ -21,18 +21,14 @@
 #include "rim/io/ply_points.h"
 #include "rim/io/png_io.h"
 #include "rim/io/pose_file.h"
+#include "support/temp_dir.h"
 
 namespace rim::io {
 namespace {
 
 using ::testing::HasSubstr;
 
-std::string TempDir() {
-  std::string tmpl = ::testing::TempDir() + "/rim_io_formats_XXXXXX";
-  const char* dir = mkdtemp(tmpl.data());
-  EXPECT_NE(dir, nullptr);
-  return tmpl;
-}
+std::string TempDir() { return rim::testing_support::MakeTempDir("rim_io_formats"); }
 
 void WriteRaw(const std::string& path, const std::string& bytes) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);

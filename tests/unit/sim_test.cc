@@ -30,16 +30,14 @@
 #include "sim/scene.h"
 #include "sim/sensors.h"
 #include "sim/writers.h"
+#include "support/temp_dir.h"
 
 namespace rim::sim {
 namespace {
 
 // A fresh, empty folder per test and process (ctest runs test cases in parallel processes).
 std::string TempDir(const std::string& name) {
-  const std::string dir = absl::StrCat(::testing::TempDir(), "/rim_sim_test_", name, "_", getpid());
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir;
+  return rim::testing_support::MakeTempDir("rim_sim_test_" + name);
 }
 
 std::string ReadFile(const std::string& path) {
