@@ -1,0 +1,140 @@
+#include "server/session.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+
+namespace rim::server {
+
+absl::StatusOr<std::unique_ptr<Session>> Session::Create(const std::string& robot_id,
+                                                         const MapperConfig& config,
+                                                         const SessionOptions& options) {
+  auto mapper = Mapper::Create(config);
+  if (!mapper.ok()) return mapper.status();
+  return Adopt(robot_id, std::move(*mapper), options);
+}
+
+std::unique_ptr<Session> Session::Adopt(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
+                                        const SessionOptions& options) {
+  return std::unique_ptr<Session>(new Session(robot_id, std::move(mapper), options));
+}
+
+Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
+                 const SessionOptions& options)
+    : robot_id_(robot_id), mapper_(std::move(mapper)), options_(options) {
+  stats_.integrated = uint64_t(mapper_->frames());
+  stats_.accepted = stats_.integrated;
+  stats_.iterations_per_frame = mapper_->config().train.iterations;
+  trainer_ = std::thread([this] { Run(); });
+}
+
+Session::~Session() { Close(); }
+
+int Session::AdaptiveIterations(size_t queue_depth) const {
+  const TrainConfig& t = mapper_->config().train;
+  if (queue_depth <= 1 || options_.queue_length <= 1) return t.iterations;
+  // Linear from the full count with one scan waiting down to the minimum with a full queue.
+  const double fill = double(queue_depth - 1) / double(options_.queue_length - 1);
+  const int n = int(std::lround(t.iterations - fill * (t.iterations - t.min_iterations)));
+  return std::clamp(n, t.min_iterations, t.iterations);
+}
+
+absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated) {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (closing_)
+    return absl::FailedPreconditionError(absl::StrCat("session ", robot_id_, " is closing"));
+  if (queue_.size() >= size_t(options_.queue_length))
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
+  queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
+  ++stats_.accepted;
+  stats_.queue_depth = queue_.size();
+  cv_.notify_all();
+  return absl::OkStatus();
+}
+
+void Session::OnSpace(std::function<void()> fn) {
+  std::unique_lock<std::mutex> lock(mu_);
+  if (queue_.size() < size_t(options_.queue_length) || closing_) {
+    lock.unlock();
+    fn();
+    return;
+  }
+  space_waiters_.push_back(std::move(fn));
+}
+
+void Session::Drain() {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait(lock, [this] { return queue_.empty() && !busy_; });
+}
+
+void Session::Close() {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closing_ && !trainer_.joinable()) return;
+    closing_ = true;
+  }
+  cv_.notify_all();
+  if (trainer_.joinable()) trainer_.join();
+}
+
+SessionStats Session::Stats() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return stats_;
+}
+
+void Session::CountRejected() {
+  std::lock_guard<std::mutex> lock(mu_);
+  ++stats_.rejected;
+}
+
+void Session::Run() {
+  std::unique_lock<std::mutex> lock(mu_);
+  while (true) {
+    // Drain everything accepted before stopping: an accepted scan is never dropped.
+    cv_.wait(lock, [this] { return closing_ || !queue_.empty(); });
+    if (queue_.empty()) break;
+    Item item = std::move(queue_.front());
+    queue_.pop_front();
+    busy_ = true;
+    const size_t depth_at_start = queue_.size() + 1;
+    std::vector<std::function<void()>> waiters;
+    waiters.swap(space_waiters_);
+    lock.unlock();
+    for (auto& fn : waiters) fn();
+
+    const int iterations = AdaptiveIterations(depth_at_start);
+    StageTimings timing;
+    const absl::Status status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+
+    lock.lock();
+    if (!status.ok()) ++stats_.failed;
+    if (status.ok()) {
+      ++stats_.integrated;
+      stats_.last_loss = timing.loss;
+      stats_.last_timing = timing;
+    }
+    stats_.iterations_per_frame = iterations;
+    stats_.queue_depth = queue_.size();
+    IntegratedAck ack;
+    ack.sequence = item.sequence;
+    ack.status = status;
+    ack.iterations = iterations;
+    ack.map_version = mapper_->map_version();
+    ack.queue_depth = queue_.size();
+    ack.lag_frames = stats_.accepted - stats_.integrated - stats_.failed;
+    lock.unlock();
+    // The ack goes out before the item counts as done, so Drain() returns only after it.
+    if (item.on_integrated) item.on_integrated(ack);
+    lock.lock();
+    busy_ = false;
+    cv_.notify_all();
+  }
+  std::vector<std::function<void()>> waiters;
+  waiters.swap(space_waiters_);
+  lock.unlock();
+  for (auto& fn : waiters) fn();  // closing: let waiting handlers find out
+}
+
+}  // namespace rim::server

@@ -1,0 +1,105 @@
+// One robot's mapping session in the service: the mapper, its bounded ingest queue and the
+// trainer thread that owns training (DESIGN.md §5.2). gRPC handlers only validate and call
+// Submit(); they never train. Knows nothing of gRPC: acks go out through callbacks.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "rim/config.h"
+#include "rim/mapper.h"
+#include "rim/scan.h"
+
+namespace rim::server {
+
+struct SessionOptions {
+  // Accepted scans waiting for training. When full, Submit() says so and the stream handler stops
+  // reading until OnSpace fires: backpressure reaches the robot through gRPC flow control.
+  int queue_length = 8;
+};
+
+struct IntegratedAck {
+  uint64_t sequence = 0;
+  absl::Status status;  // not OK if training this scan failed
+  int iterations = 0;
+  uint64_t map_version = 0;
+  size_t queue_depth = 0;
+  uint64_t lag_frames = 0;
+};
+
+struct SessionStats {
+  uint64_t accepted = 0, integrated = 0, rejected = 0;
+  uint64_t failed = 0;  // accepted, but training it returned an error
+  size_t queue_depth = 0;
+  int iterations_per_frame = 0;
+  float last_loss = 0;
+  StageTimings last_timing;
+};
+
+class Session {
+ public:
+  using IntegratedFn = std::function<void(const IntegratedAck&)>;
+
+  static absl::StatusOr<std::unique_ptr<Session>> Create(const std::string& robot_id,
+                                                         const MapperConfig& config,
+                                                         const SessionOptions& options);
+  // Takes over an existing mapper (a loaded session).
+  static std::unique_ptr<Session> Adopt(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
+                                        const SessionOptions& options);
+  ~Session();  // drains the queue, then stops the trainer
+
+  // Queues a validated scan. RESOURCE_EXHAUSTED when the queue is full (nothing changed; call
+  // again after OnSpace); FAILED_PRECONDITION once the session is closing. `on_integrated` runs on
+  // the trainer thread after the scan is trained.
+  absl::Status Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated);
+  // Registers a one-shot callback run (on the trainer thread) when the queue has room again.
+  void OnSpace(std::function<void()> fn);
+  // Waits until every queued scan is integrated.
+  void Drain();
+  // Stops accepting, drains, stops the trainer. Idempotent.
+  void Close();
+
+  // Iterations the trainer will use for the next frame, given the queue depth: the configured
+  // number while the queue is short, fewer as it fills, never below train.min_iterations (§5.1).
+  int AdaptiveIterations(size_t queue_depth) const;
+
+  const std::string& robot_id() const { return robot_id_; }
+  Mapper& mapper() { return *mapper_; }
+  const Mapper& mapper() const { return *mapper_; }
+  SessionStats Stats() const;
+  void CountRejected();
+
+ private:
+  Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
+          const SessionOptions& options);
+  void Run();
+
+  struct Item {
+    uint64_t sequence;
+    PosedScan scan;
+    IntegratedFn on_integrated;
+  };
+
+  const std::string robot_id_;
+  std::unique_ptr<Mapper> mapper_;
+  const SessionOptions options_;
+
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<Item> queue_;
+  bool busy_ = false;  // the trainer is integrating a popped item
+  bool closing_ = false;
+  std::vector<std::function<void()>> space_waiters_;
+  SessionStats stats_;
+  std::thread trainer_;
+};
+
+}  // namespace rim::server

@@ -1,0 +1,122 @@
+// Session: the trainer thread integrates queued scans in order, the bounded queue pushes back,
+// iterations adapt to the queue depth, and closing drains every accepted scan.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "server/session.h"
+#include "support/analytic_scene.h"
+
+namespace rim::server {
+namespace {
+
+MapperConfig SmallConfig() {
+  auto config = MakePreset("maicity");
+  EXPECT_TRUE(ApplyOverrides({"grid.half_extent_x_m=2", "grid.half_extent_y_m=2",
+                              "grid.z_min_m=-1.2", "grid.z_max_m=1.2", "train.iterations=8",
+                              "train.min_iterations=2", "sampler.rays_per_iteration=128"},
+                             &*config)
+                  .ok());
+  return *config;
+}
+
+PosedScan Scan(float x) {
+  testing_support::AnalyticScene scene;
+  testing_support::LidarModel lidar;
+  lidar.beams = 8;
+  lidar.columns = 180;
+  lidar.max_range_m = 6.f;
+  Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
+  T.translation() = Eigen::Vector3f(x, 0.f, 1.f);
+  PosedScan scan;
+  scan.T_world_sensor = T.cast<double>();
+  for (const auto& p : testing_support::SimulateScan(scene, lidar, T, 1))
+    scan.points_S.push_back(p);
+  return scan;
+}
+
+TEST(SessionTest, IntegratesInOrderAndCountsFrames) {
+  SessionOptions options;
+  options.queue_length = 16;
+  auto session = Session::Create("robot_a", SmallConfig(), options);
+  ASSERT_TRUE(session.ok());
+  std::mutex mu;
+  std::vector<uint64_t> order;
+  for (uint64_t i = 0; i < 5; ++i) {
+    ASSERT_TRUE((*session)
+                    ->Submit(i, Scan(0.2f * i),
+                             [&](const IntegratedAck& ack) {
+                               EXPECT_TRUE(ack.status.ok());
+                               std::lock_guard<std::mutex> lock(mu);
+                               order.push_back(ack.sequence);
+                             })
+                    .ok());
+  }
+  (*session)->Drain();
+  EXPECT_EQ(order, (std::vector<uint64_t>{0, 1, 2, 3, 4}));
+  const SessionStats stats = (*session)->Stats();
+  EXPECT_EQ(stats.accepted, 5u);
+  EXPECT_EQ(stats.integrated, 5u);
+  EXPECT_EQ((*session)->mapper().frames(), 5);
+}
+
+TEST(SessionTest, FullQueuePushesBackAndSignalsSpace) {
+  SessionOptions options;
+  options.queue_length = 2;
+  auto session = Session::Create("robot_b", SmallConfig(), options);
+  ASSERT_TRUE(session.ok());
+  int accepted = 0;
+  absl::Status full;
+  for (int i = 0; i < 50 && full.ok(); ++i) {
+    full = (*session)->Submit(uint64_t(i), Scan(0.f), nullptr);
+    accepted += full.ok();
+  }
+  EXPECT_EQ(full.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_NE(std::string(full.message()).find("robot_b"), std::string::npos);
+  std::atomic<bool> space{false};
+  (*session)->OnSpace([&] { space = true; });
+  (*session)->Drain();
+  EXPECT_TRUE(space.load());
+  EXPECT_EQ((*session)->Stats().integrated, uint64_t(accepted));
+}
+
+TEST(SessionTest, IterationsAdaptToQueueDepth) {
+  SessionOptions options;
+  options.queue_length = 5;
+  auto session = Session::Create("robot_c", SmallConfig(), options);
+  ASSERT_TRUE(session.ok());
+  EXPECT_EQ((*session)->AdaptiveIterations(0), 8);
+  EXPECT_EQ((*session)->AdaptiveIterations(1), 8);
+  EXPECT_EQ((*session)->AdaptiveIterations(5), 2);
+  int previous = 8;
+  for (size_t d = 1; d <= 5; ++d) {
+    const int n = (*session)->AdaptiveIterations(d);
+    EXPECT_LE(n, previous);
+    EXPECT_GE(n, 2);
+    previous = n;
+  }
+}
+
+TEST(SessionTest, CloseDrainsEveryAcceptedScanThenRefuses) {
+  SessionOptions options;
+  options.queue_length = 8;
+  auto session = Session::Create("robot_d", SmallConfig(), options);
+  ASSERT_TRUE(session.ok());
+  std::atomic<int> integrated{0};
+  for (int i = 0; i < 6; ++i)
+    ASSERT_TRUE((*session)
+                    ->Submit(uint64_t(i), Scan(0.f), [&](const IntegratedAck&) { ++integrated; })
+                    .ok());
+  (*session)->Close();
+  EXPECT_EQ(integrated.load(), 6);
+  EXPECT_EQ((*session)->mapper().frames(), 6);
+  EXPECT_EQ((*session)->Submit(7, Scan(0.f), nullptr).code(),
+            absl::StatusCode::kFailedPrecondition);
+}
+
+}  // namespace
+}  // namespace rim::server
