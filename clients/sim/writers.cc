@@ -1,11 +1,8 @@
 #include "sim/writers.h"
 
-#include <png.h>
-
 #include <cctype>
 #include <cerrno>
 #include <cmath>
-#include <csetjmp>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -13,6 +10,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "rim/io/png_io.h"
 
 namespace rim::sim {
 namespace {
@@ -39,20 +37,6 @@ std::string MatrixRow(const Eigen::Matrix4d& m, int row, int cols, const char* s
   }
   return s;
 }
-
-// libpng reports errors through a callback that must not return; it jumps back to the setjmp in
-// the calling function after saving the message.
-struct PngErrorContext {
-  char message[256] = {0};
-};
-
-void PngError(png_structp png, png_const_charp msg) {
-  auto* ctx = static_cast<PngErrorContext*>(png_get_error_ptr(png));
-  std::snprintf(ctx->message, sizeof(ctx->message), "%s", msg);
-  png_longjmp(png, 1);
-}
-
-void PngWarning(png_structp, png_const_charp) {}
 
 bool IsDigits(const std::string& s, size_t pos, size_t n) {
   if (s.size() < pos + n) return false;
@@ -140,94 +124,17 @@ absl::Status WritePng16(const std::string& path, int width, int height,
     return absl::InvalidArgumentError(absl::StrFormat("%s: image is %dx%d but has %d pixels", path,
                                                       width, height, pixels.size()));
   }
-  std::vector<png_bytep> rows(height);
-  for (int v = 0; v < height; ++v) {
-    rows[v] = reinterpret_cast<png_bytep>(const_cast<uint16_t*>(pixels.data()) +
-                                          static_cast<size_t>(v) * width);
-  }
-  std::FILE* fp = std::fopen(path.c_str(), "wb");
-  if (fp == nullptr) {
-    return absl::ErrnoToStatus(errno, absl::StrCat("cannot open ", path, " for writing"));
-  }
-  PngErrorContext ctx;
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &ctx, PngError, PngWarning);
-  png_infop info = png == nullptr ? nullptr : png_create_info_struct(png);
-  if (png == nullptr || info == nullptr) {
-    png_destroy_write_struct(&png, &info);
-    std::fclose(fp);
-    return absl::InternalError(absl::StrCat(path, ": cannot initialise libpng"));
-  }
-  if (setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, &info);
-    std::fclose(fp);
-    return absl::InternalError(absl::StrCat(path, ": PNG write failed: ", ctx.message));
-  }
-  png_init_io(png, fp);
-  png_set_IHDR(png, info, width, height, 16, PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE,
-               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  png_set_compression_level(png, 3);
-  png_write_info(png, info);
-  png_set_swap(png);  // host little-endian -> PNG big-endian
-  png_write_image(png, rows.data());
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  if (std::fclose(fp) != 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write ", path));
-  return absl::OkStatus();
+  return io::WritePng16(path, width, height, pixels.data());
 }
-
-namespace {
-
-// The libpng part of ReadPng16. All C++ objects it fills live in the caller, so nothing that a
-// longjmp skips over needs destroying; returns false after a libpng error (message in ctx) and
-// sets *format_ok to false for a PNG that is not 16-bit grayscale.
-bool ReadPngBody(png_structp png, png_infop info, std::FILE* fp, Png16* image,
-                 std::vector<png_bytep>* rows, int* depth, int* color) {
-  if (setjmp(png_jmpbuf(png))) return false;
-  png_init_io(png, fp);
-  png_read_info(png, info);
-  *depth = png_get_bit_depth(png, info);
-  *color = png_get_color_type(png, info);
-  if (*depth != 16 || *color != PNG_COLOR_TYPE_GRAY) return true;
-  const png_uint_32 width = png_get_image_width(png, info);
-  const png_uint_32 height = png_get_image_height(png, info);
-  png_set_swap(png);
-  image->width = static_cast<int>(width);
-  image->height = static_cast<int>(height);
-  image->pixels.resize(static_cast<size_t>(width) * height);
-  rows->resize(height);
-  for (png_uint_32 v = 0; v < height; ++v) {
-    (*rows)[v] = reinterpret_cast<png_bytep>(image->pixels.data() + static_cast<size_t>(v) * width);
-  }
-  png_read_image(png, rows->data());
-  png_read_end(png, nullptr);
-  return true;
-}
-
-}  // namespace
 
 absl::StatusOr<Png16> ReadPng16(const std::string& path) {
-  std::FILE* fp = std::fopen(path.c_str(), "rb");
-  if (fp == nullptr) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open ", path));
-  PngErrorContext ctx;
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &ctx, PngError, PngWarning);
-  png_infop info = png == nullptr ? nullptr : png_create_info_struct(png);
-  if (png == nullptr || info == nullptr) {
-    png_destroy_read_struct(&png, &info, nullptr);
-    std::fclose(fp);
-    return absl::InternalError(absl::StrCat(path, ": cannot initialise libpng"));
-  }
-  Png16 image;
-  std::vector<png_bytep> rows;
-  int depth = 0, color = 0;
-  const bool ok = ReadPngBody(png, info, fp, &image, &rows, &depth, &color);
-  png_destroy_read_struct(&png, &info, nullptr);
-  std::fclose(fp);
-  if (!ok) return absl::DataLossError(absl::StrCat(path, ": PNG read failed: ", ctx.message));
-  if (depth != 16 || color != PNG_COLOR_TYPE_GRAY) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "%s: expected 16-bit grayscale, got bit depth %d colour type %d", path, depth, color));
-  }
-  return image;
+  absl::StatusOr<io::Image16> image = io::ReadPng16(path);
+  if (!image.ok()) return image.status();
+  Png16 out;
+  out.width = image->width;
+  out.height = image->height;
+  out.pixels = std::move(image->pixels);
+  return out;
 }
 
 absl::Status WritePoseMatrix(const std::string& path, const Eigen::Isometry3d& pose) {

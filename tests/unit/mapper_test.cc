@@ -1,6 +1,5 @@
 // Mapper façade on a small map: bad input changes nothing, the decoder freezes, iteration
 // clamping, tile versions, spilling under a memory budget, and load errors that name the file.
-#include "rim/map_geometry.h"
 #include "rim/mapper.h"
 
 #include <gmock/gmock.h>
@@ -14,6 +13,7 @@
 #include <set>
 
 #include "rim/decoder.h"
+#include "rim/map_geometry.h"
 #include "rim/submap_store.h"
 #include "support/analytic_scene.h"
 
