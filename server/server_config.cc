@@ -1,0 +1,135 @@
+#include "server/server_config.h"
+
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <vector>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_replace.h"
+#include "absl/strings/string_view.h"
+
+namespace rim::server {
+namespace {
+
+absl::Status ParseInt(const std::string& name, const std::string& value, int min, int* out) {
+  int v = 0;
+  if (!absl::SimpleAtoi(value, &v) || v < min)
+    return absl::InvalidArgumentError(
+        absl::StrCat("--", name, ": expected an integer >= ", min, ", got '", value, "'"));
+  *out = v;
+  return absl::OkStatus();
+}
+
+// Applies one setting; `name` uses dashes (max-sessions).
+absl::Status Apply(const std::string& raw_name, const std::string& value, ServerConfig* c) {
+  const std::string name = absl::StrReplaceAll(raw_name, {{"_", "-"}});
+  if (name == "listen") {
+    c->listen = value;
+  } else if (name == "data-dir") {
+    c->data_dir = value;
+  } else if (name == "metrics") {
+    c->metrics = value;
+  } else if (name == "preset") {
+    c->default_preset = value;
+  } else if (name == "max-sessions") {
+    return ParseInt(name, value, 1, &c->max_sessions);
+  } else if (name == "queue-length") {
+    return ParseInt(name, value, 1, &c->queue_length);
+  } else if (name == "max-query-points") {
+    return ParseInt(name, value, 1, &c->max_query_points);
+  } else if (name == "max-points-per-scan") {
+    return ParseInt(name, value, 1, &c->max_points_per_scan);
+  } else if (name == "host-memory-budget-bytes") {
+    if (!absl::SimpleAtoi(value, &c->host_memory_budget_bytes))
+      return absl::InvalidArgumentError(absl::StrCat("--", name, ": bad value '", value, "'"));
+  } else {
+    return absl::InvalidArgumentError(absl::StrCat("unknown setting --", raw_name));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyFile(const std::string& path, ServerConfig* c) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrCat("--config: cannot read ", path));
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    const size_t hash = line.find('#');
+    if (hash != std::string::npos) line.resize(hash);
+    const absl::string_view trimmed = absl::StripAsciiWhitespace(line);
+    if (trimmed.empty()) continue;
+    const size_t eq = trimmed.find('=');
+    if (eq == std::string::npos)
+      return absl::InvalidArgumentError(
+          absl::StrCat(path, ":", line_no, ": expected 'key = value'"));
+    const std::string key(absl::StripAsciiWhitespace(trimmed.substr(0, eq)));
+    const std::string value(absl::StripAsciiWhitespace(trimmed.substr(eq + 1)));
+    absl::Status s = Apply(key, value, c);
+    if (!s.ok())
+      return absl::InvalidArgumentError(absl::StrCat(path, ":", line_no, ": ", s.message()));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+std::string ServerUsage() {
+  return "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE]\n"
+         "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
+         "                  [--max-query-points N] [--max-points-per-scan N]\n";
+}
+
+std::string ServerConfig::ToString() const {
+  std::ostringstream s;
+  s << "listen = " << listen << "\n"
+    << "data_dir = " << data_dir << "\n"
+    << "metrics = " << metrics << "\n"
+    << "config = " << config_file << "\n"
+    << "preset = " << default_preset << "\n"
+    << "max_sessions = " << max_sessions << "\n"
+    << "queue_length = " << queue_length << "\n"
+    << "max_query_points = " << max_query_points << "\n"
+    << "max_points_per_scan = " << max_points_per_scan << "\n"
+    << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n";
+  return s.str();
+}
+
+absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
+  std::vector<std::pair<std::string, std::string>> flags;
+  for (int i = 1; i < argc; ++i) {
+    std::string arg = argv[i];
+    if (arg.rfind("--", 0) != 0)
+      return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
+    arg = arg.substr(2);
+    const size_t eq = arg.find('=');
+    if (eq != std::string::npos) {
+      flags.emplace_back(arg.substr(0, eq), arg.substr(eq + 1));
+    } else {
+      if (i + 1 >= argc)
+        return absl::InvalidArgumentError(absl::StrCat("--", arg, " needs a value"));
+      flags.emplace_back(arg, argv[++i]);
+    }
+  }
+  ServerConfig config;
+  for (const auto& [name, value] : flags) {
+    if (name == "config") config.config_file = value;
+  }
+  if (!config.config_file.empty()) {
+    absl::Status s = ApplyFile(config.config_file, &config);
+    if (!s.ok()) return s;
+  }
+  for (const auto& [name, value] : flags) {
+    if (name == "config") continue;
+    absl::Status s = Apply(name, value, &config);
+    if (!s.ok()) return s;
+  }
+  if (config.data_dir.empty()) return absl::InvalidArgumentError("--data-dir is required");
+  if (config.listen.empty()) return absl::InvalidArgumentError("--listen must not be empty");
+  return config;
+}
+
+}  // namespace rim::server

@@ -1,0 +1,37 @@
+// rim_server's own settings (DESIGN.md §5.5): command-line flags over an optional config file of
+// `key = value` lines ('#' comments), keys named like the flags without the dashes
+// (listen, data_dir or data-dir, max_sessions, ...).
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/statusor.h"
+
+namespace rim::server {
+
+struct ServerConfig {
+  std::string listen = "127.0.0.1:50051";
+  std::string data_dir;
+  std::string metrics;      // accepted, not served yet
+  std::string config_file;  // --config
+  std::string default_preset = "maicity";
+  int max_sessions = 16;
+  int queue_length = 8;
+  int max_query_points = 1 << 20;
+  int max_points_per_scan = 1 << 21;
+  uint64_t host_memory_budget_bytes = 0;  // 0: no budget enforced
+
+  // Every field as `key = value` lines.
+  std::string ToString() const;
+};
+
+// Parses argv (flags as `--name value` or `--name=value`); a --config file is read first and the
+// flags override it. INVALID_ARGUMENT naming the flag for an unknown flag, a missing or bad value,
+// or a missing --data-dir.
+absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv);
+
+// Usage text for --help and errors.
+std::string ServerUsage();
+
+}  // namespace rim::server

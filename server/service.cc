@@ -1,0 +1,152 @@
+#include "server/service.h"
+
+#include <chrono>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "rim/config.h"
+#include "rim/version.h"
+#include "server/scan_convert.h"
+#include "server/status_mapping.h"
+
+namespace rim::server {
+namespace {
+
+grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const absl::Status& status) {
+  grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
+  reactor->Finish(ToGrpcStatus(status));
+  return reactor;
+}
+
+}  // namespace
+
+void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
+  const SessionStats stats = session.Stats();
+  const MapperStats mapper = session.mapper().Stats();
+  info->set_robot_id(session.robot_id());
+  info->set_preset(session.mapper().config().preset);
+  info->set_config(session.mapper().config().ToString());
+  info->set_accepted_frames(stats.accepted);
+  info->set_rejected_frames(stats.rejected);
+  info->set_integrated_frames(stats.integrated);
+  info->set_queue_depth(uint32_t(stats.queue_depth));
+  info->set_iterations_per_frame(uint32_t(stats.iterations_per_frame));
+  info->set_map_version(mapper.map_version);
+  info->set_buffer_points(uint64_t(mapper.buffer_points));
+  info->set_submaps_active(uint32_t(mapper.submaps_active));
+  info->set_submaps_frozen(uint32_t(mapper.submaps_frozen));
+  info->set_submaps_on_disk(uint32_t(mapper.submaps_on_disk));
+  info->set_host_memory_bytes(uint64_t(mapper.local_map_bytes + mapper.submap_bytes));
+  info->set_decoder_frozen(mapper.decoder_frozen);
+  info->set_last_loss(stats.last_loss);
+}
+
+grpc::ServerUnaryReactor* RimService::CreateSession(grpc::CallbackServerContext* ctx,
+                                                    const rim::v1::CreateSessionRequest* request,
+                                                    rim::v1::SessionInfo* response) {
+  std::vector<std::pair<std::string, std::string>> overrides;
+  for (const auto& o : request->overrides()) overrides.emplace_back(o.key(), o.value());
+  auto session = sessions_->Create(request->robot_id(), request->preset(), overrides);
+  if (!session.ok()) return Done(ctx, session.status());
+  FillSessionInfo(**session, response);
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* RimService::GetSession(grpc::CallbackServerContext* ctx,
+                                                 const rim::v1::GetSessionRequest* request,
+                                                 rim::v1::SessionInfo* response) {
+  auto session = sessions_->Get(request->robot_id());
+  if (!session.ok()) return Done(ctx, session.status());
+  FillSessionInfo(**session, response);
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* RimService::ListSessions(grpc::CallbackServerContext* ctx,
+                                                   const rim::v1::ListSessionsRequest* request,
+                                                   rim::v1::ListSessionsResponse* response) {
+  for (const auto& session : sessions_->List()) FillSessionInfo(*session, response->add_sessions());
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* RimService::CloseSession(grpc::CallbackServerContext* ctx,
+                                                   const rim::v1::CloseSessionRequest* request,
+                                                   rim::v1::CloseSessionResponse* response) {
+  // Drains the session's queue on this handler thread; training itself stays on the trainer.
+  return Done(ctx, sessions_->Close(request->robot_id(), request->save()));
+}
+
+grpc::ServerUnaryReactor* RimService::SaveSession(grpc::CallbackServerContext* ctx,
+                                                  const rim::v1::SaveSessionRequest* request,
+                                                  rim::v1::SaveSessionResponse* response) {
+  auto session = sessions_->Get(request->robot_id());
+  if (!session.ok()) return Done(ctx, session.status());
+  const uint64_t version = (*session)->mapper().map_version();
+  auto checkpoint = sessions_->Save(request->robot_id());
+  if (!checkpoint.ok()) return Done(ctx, checkpoint.status());
+  response->set_checkpoint(*checkpoint);
+  response->set_map_version(version);
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerUnaryReactor* RimService::LoadSession(grpc::CallbackServerContext* ctx,
+                                                  const rim::v1::LoadSessionRequest* request,
+                                                  rim::v1::SessionInfo* response) {
+  auto session = sessions_->Load(request->robot_id());
+  if (!session.ok()) return Done(ctx, session.status());
+  FillSessionInfo(**session, response);
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScans(
+    grpc::CallbackServerContext* ctx) {
+  return NewScanStreamReactor(sessions_, limits_);
+}
+
+grpc::ServerUnaryReactor* RimService::QuerySdf(grpc::CallbackServerContext* ctx,
+                                               const rim::v1::QuerySdfRequest* request,
+                                               rim::v1::QuerySdfResponse* response) {
+  const auto start = std::chrono::steady_clock::now();
+  auto session = sessions_->Get(request->robot_id());
+  if (!session.ok()) return Done(ctx, session.status());
+  auto xyz = UnpackXyz(request->points_xyz(), "points_xyz", size_t(limits_.max_query_points),
+                       "--max-query-points; use StreamQuerySdf for larger batches");
+  if (!xyz.ok()) return Done(ctx, xyz.status());
+  const size_t n = xyz->size() / 3;
+  QueryResult result;
+  absl::Status s = (*session)->mapper().QuerySdf(xyz->data(), n, request->want_gradient(), &result);
+  if (!s.ok()) return Done(ctx, s);
+  response->set_sdf(reinterpret_cast<const char*>(result.sdf.data()), result.sdf.size() * 4);
+  if (request->want_gradient())
+    response->set_gradient(reinterpret_cast<const char*>(result.gradient.data()),
+                           result.gradient.size() * 4);
+  response->set_observed(reinterpret_cast<const char*>(result.observed.data()),
+                         result.observed.size());
+  response->set_map_version(result.map_version);
+  response->set_server_seconds(
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  return Done(ctx, absl::OkStatus());
+}
+
+grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::GetMeshTiles(
+    grpc::CallbackServerContext* ctx, const rim::v1::GetMeshTilesRequest* request) {
+  return NewMeshTilesReactor(sessions_, *request);
+}
+
+grpc::ServerUnaryReactor* RimService::GetServerInfo(grpc::CallbackServerContext* ctx,
+                                                    const rim::v1::GetServerInfoRequest* request,
+                                                    rim::v1::ServerInfo* response) {
+  response->set_version(kRimVersion);
+  response->set_build("cpu");
+  response->set_device("cpu");
+  response->set_libtorch_version(TorchVersion());
+  response->set_max_sessions(uint32_t(limits_.max_sessions));
+  response->set_max_points_per_scan(uint32_t(limits_.max_points_per_scan));
+  response->set_max_query_points(uint32_t(limits_.max_query_points));
+  response->set_queue_length(uint32_t(limits_.queue_length));
+  response->set_host_memory_budget_bytes(limits_.host_memory_budget_bytes);
+  for (const std::string& name : PresetNames()) response->add_presets(name);
+  return Done(ctx, absl::OkStatus());
+}
+
+}  // namespace rim::server

@@ -1,0 +1,70 @@
+// The rim.v1.Rim gRPC service (DESIGN.md §5.1), on the callback API. Handlers validate, hand work
+// to sessions and return; training runs only on each session's trainer thread. Core errors are
+// absl::Status, converted once at the edge by ToGrpcStatus.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "rim/v1/rim.grpc.pb.h"
+#include "server/session_manager.h"
+
+namespace rim::server {
+
+struct ServiceLimits {
+  int max_points_per_scan = 1 << 21;
+  int max_query_points = 1 << 20;
+  int queue_length = 8;
+  int max_sessions = 16;
+  uint64_t host_memory_budget_bytes = 0;
+};
+
+class RimService final : public rim::v1::Rim::CallbackService {
+ public:
+  RimService(SessionManager* sessions, const ServiceLimits& limits)
+      : sessions_(sessions), limits_(limits) {}
+
+  grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* ctx,
+                                          const rim::v1::CreateSessionRequest* request,
+                                          rim::v1::SessionInfo* response) override;
+  grpc::ServerUnaryReactor* GetSession(grpc::CallbackServerContext* ctx,
+                                       const rim::v1::GetSessionRequest* request,
+                                       rim::v1::SessionInfo* response) override;
+  grpc::ServerUnaryReactor* ListSessions(grpc::CallbackServerContext* ctx,
+                                         const rim::v1::ListSessionsRequest* request,
+                                         rim::v1::ListSessionsResponse* response) override;
+  grpc::ServerUnaryReactor* CloseSession(grpc::CallbackServerContext* ctx,
+                                         const rim::v1::CloseSessionRequest* request,
+                                         rim::v1::CloseSessionResponse* response) override;
+  grpc::ServerUnaryReactor* SaveSession(grpc::CallbackServerContext* ctx,
+                                        const rim::v1::SaveSessionRequest* request,
+                                        rim::v1::SaveSessionResponse* response) override;
+  grpc::ServerUnaryReactor* LoadSession(grpc::CallbackServerContext* ctx,
+                                        const rim::v1::LoadSessionRequest* request,
+                                        rim::v1::SessionInfo* response) override;
+  grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* StreamScans(
+      grpc::CallbackServerContext* ctx) override;
+  grpc::ServerUnaryReactor* QuerySdf(grpc::CallbackServerContext* ctx,
+                                     const rim::v1::QuerySdfRequest* request,
+                                     rim::v1::QuerySdfResponse* response) override;
+  grpc::ServerWriteReactor<rim::v1::MeshTile>* GetMeshTiles(
+      grpc::CallbackServerContext* ctx, const rim::v1::GetMeshTilesRequest* request) override;
+  grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* ctx,
+                                          const rim::v1::GetServerInfoRequest* request,
+                                          rim::v1::ServerInfo* response) override;
+
+ private:
+  SessionManager* sessions_;
+  const ServiceLimits limits_;
+};
+
+// Fills `info` from the session's counters and its mapper's statistics.
+void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
+
+// The StreamScans reactor (service_stream.cc) and the GetMeshTiles reactor (service_mesh.cc).
+grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
+    SessionManager* sessions, const ServiceLimits& limits);
+grpc::ServerWriteReactor<rim::v1::MeshTile>* NewMeshTilesReactor(
+    SessionManager* sessions, const rim::v1::GetMeshTilesRequest& request);
+
+}  // namespace rim::server

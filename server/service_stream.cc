@@ -1,0 +1,252 @@
+// StreamScans: a bidirectional reactor. Per scan it validates, then Session::Submit()s; a full
+// queue stops reading until Session::OnSpace fires (backpressure through gRPC flow control). Acks
+// go out one write at a time from a queue: ACCEPTED (or REJECTED) from the reading side, and
+// INTEGRATED from the trainer thread. The stream finishes once the client has half-closed and every
+// accepted scan's INTEGRATED ack is written.
+//
+// Threading: all state is guarded by Shared::mu. Callbacks from the trainer thread hold only a
+// shared_ptr<Shared> and reach the reactor through Shared::reactor, which OnDone clears under the
+// mutex before deleting the reactor, so a late callback finds nullptr and does nothing.
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <optional>
+
+#include "absl/strings/str_cat.h"
+#include "server/scan_convert.h"
+#include "server/service.h"
+#include "server/status_mapping.h"
+
+namespace rim::server {
+namespace {
+
+class ScanStreamReactor;
+
+struct Shared {
+  std::mutex mu;
+  ScanStreamReactor* reactor = nullptr;
+};
+
+class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck> {
+ public:
+  ScanStreamReactor(SessionManager* sessions, const ServiceLimits& limits)
+      : sessions_(sessions), limits_(limits), shared_(std::make_shared<Shared>()) {
+    shared_->reactor = this;
+    std::lock_guard<std::mutex> lock(shared_->mu);
+    StartRead(&in_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      half_closed_ = true;
+      MaybeFinishLocked();
+      return;
+    }
+    HandleScan();
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::lock_guard<std::mutex> lock(shared_->mu);
+    writing_ = false;
+    if (!ok) {
+      cancelled_ = true;
+      MaybeFinishLocked();
+      return;
+    }
+    WriteNextLocked();
+  }
+
+  void OnCancel() override {
+    std::lock_guard<std::mutex> lock(shared_->mu);
+    cancelled_ = true;
+    MaybeFinishLocked();
+  }
+
+  void OnDone() override {
+    {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      shared_->reactor = nullptr;
+    }
+    delete this;
+  }
+
+  // Submits the pending scan (called with Shared::mu held). Returns the session to wait on when its
+  // queue is full; nullptr when the scan was accepted, rejected or dropped.
+  std::shared_ptr<Session> SubmitLocked() {
+    if (!pending_) return nullptr;
+    if (finished_) {
+      pending_.reset();
+      return nullptr;
+    }
+    Pending& p = *pending_;
+    ++awaiting_integration_;
+    std::weak_ptr<Shared> weak = shared_;
+    const absl::Status s = p.session->Submit(p.sequence, p.scan, [weak](const IntegratedAck& ack) {
+      std::shared_ptr<Shared> shared = weak.lock();
+      if (!shared) return;
+      std::lock_guard<std::mutex> lock(shared->mu);
+      if (shared->reactor != nullptr) shared->reactor->OnIntegratedLocked(ack);
+    });
+    if (s.ok()) {
+      rim::v1::ScanAck ack = MakeAck(*p.session, p.sequence, rim::v1::ScanAck::ACCEPTED);
+      pending_.reset();
+      EnqueueLocked(std::move(ack));
+      ReadNextLocked();
+      return nullptr;
+    }
+    --awaiting_integration_;
+    if (s.code() == absl::StatusCode::kResourceExhausted) return p.session;
+    p.session->CountRejected();
+    RejectLocked(p.sequence, s);
+    pending_.reset();
+    ReadNextLocked();
+    return nullptr;
+  }
+
+  std::shared_ptr<Shared> shared() const { return shared_; }
+
+ private:
+  struct Pending {
+    std::shared_ptr<Session> session;
+    uint64_t sequence;
+    PosedScan scan;
+  };
+
+  void HandleScan() {
+    const uint64_t sequence = in_.sequence();
+    auto session = sessions_->Get(in_.robot_id());
+    if (!session.ok()) {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      RejectLocked(sequence, session.status());
+      ReadNextLocked();
+      return;
+    }
+    auto scan = ConvertScan(in_, size_t(limits_.max_points_per_scan));
+    if (!scan.ok()) {
+      (*session)->CountRejected();
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      RejectLocked(sequence, scan.status());
+      ReadNextLocked();
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      pending_ = Pending{*session, sequence, std::move(*scan)};
+    }
+    Retry(shared_);
+  }
+
+ public:
+  // Tries the pending submit; while the queue is full, waits for space and tries again.
+  static void Retry(const std::shared_ptr<Shared>& shared) {
+    std::shared_ptr<Session> full;
+    {
+      std::lock_guard<std::mutex> lock(shared->mu);
+      if (shared->reactor == nullptr) return;
+      full = shared->reactor->SubmitLocked();
+    }
+    if (full) full->OnSpace([shared] { Retry(shared); });
+  }
+
+ private:
+  rim::v1::ScanAck MakeAck(Session& session, uint64_t sequence, rim::v1::ScanAck::State state) {
+    const SessionStats stats = session.Stats();
+    rim::v1::ScanAck ack;
+    ack.set_sequence(sequence);
+    ack.set_state(state);
+    ack.set_queue_depth(uint32_t(stats.queue_depth));
+    ack.set_lag_frames(stats.accepted - stats.integrated - stats.failed);
+    ack.set_iterations(uint32_t(stats.iterations_per_frame));
+    ack.set_map_version(session.mapper().map_version());
+    return ack;
+  }
+
+ public:
+  void OnIntegratedLocked(const IntegratedAck& integrated) {
+    --awaiting_integration_;
+    rim::v1::ScanAck ack;
+    ack.set_sequence(integrated.sequence);
+    if (integrated.status.ok()) {
+      ack.set_state(rim::v1::ScanAck::INTEGRATED);
+    } else {
+      ack.set_state(rim::v1::ScanAck::REJECTED);
+      ack.set_reason(absl::StrCat("training failed: ", integrated.status.message()));
+      ack.set_code(int32_t(ToGrpcStatus(integrated.status).error_code()));
+    }
+    ack.set_queue_depth(uint32_t(integrated.queue_depth));
+    ack.set_lag_frames(integrated.lag_frames);
+    ack.set_iterations(uint32_t(integrated.iterations));
+    ack.set_map_version(integrated.map_version);
+    EnqueueLocked(std::move(ack));
+    MaybeFinishLocked();
+  }
+
+ private:
+  void RejectLocked(uint64_t sequence, const absl::Status& status) {
+    rim::v1::ScanAck ack;
+    ack.set_sequence(sequence);
+    ack.set_state(rim::v1::ScanAck::REJECTED);
+    ack.set_reason(std::string(status.message()));
+    ack.set_code(int32_t(ToGrpcStatus(status).error_code()));
+    EnqueueLocked(std::move(ack));
+  }
+
+  void EnqueueLocked(rim::v1::ScanAck ack) {
+    if (finished_) return;
+    queue_.push_back(std::move(ack));
+    if (!writing_) WriteNextLocked();
+  }
+
+  void WriteNextLocked() {
+    if (finished_ || queue_.empty()) {
+      MaybeFinishLocked();
+      return;
+    }
+    current_ = std::move(queue_.front());
+    queue_.pop_front();
+    writing_ = true;
+    StartWrite(&current_);
+  }
+
+  void ReadNextLocked() {
+    if (!finished_ && !half_closed_) StartRead(&in_);
+  }
+
+  void MaybeFinishLocked() {
+    if (finished_) return;
+    if (cancelled_) {
+      finished_ = true;
+      Finish(grpc::Status(grpc::StatusCode::CANCELLED, "scan stream cancelled"));
+      return;
+    }
+    if (half_closed_ && !pending_ && awaiting_integration_ == 0 && queue_.empty() && !writing_) {
+      finished_ = true;
+      Finish(grpc::Status::OK);
+    }
+  }
+
+  SessionManager* const sessions_;
+  const ServiceLimits limits_;
+  const std::shared_ptr<Shared> shared_;
+
+  rim::v1::Scan in_;  // the read buffer; only the reading side touches it
+  // Guarded by shared_->mu.
+  std::optional<Pending> pending_;
+  std::deque<rim::v1::ScanAck> queue_;
+  rim::v1::ScanAck current_;
+  bool writing_ = false;
+  bool half_closed_ = false;
+  bool cancelled_ = false;
+  bool finished_ = false;
+  uint64_t awaiting_integration_ = 0;
+};
+
+}  // namespace
+
+grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
+    SessionManager* sessions, const ServiceLimits& limits) {
+  return new ScanStreamReactor(sessions, limits);
+}
+
+}  // namespace rim::server

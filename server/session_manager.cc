@@ -1,0 +1,159 @@
+#include "server/session_manager.h"
+
+#include <filesystem>
+
+#include "absl/strings/str_cat.h"
+#include "rim/config.h"
+#include "rim/mapper.h"
+
+namespace rim::server {
+
+absl::Status ValidateRobotId(const std::string& robot_id) {
+  bool ok = !robot_id.empty() && robot_id.size() <= 64;
+  for (char c : robot_id) {
+    const bool allowed = (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') ||
+                         (c >= '0' && c <= '9') || c == '_' || c == '.' || c == '-';
+    ok = ok && allowed;
+  }
+  // "." and ".." would name directories other than the session's own.
+  if (robot_id == "." || robot_id == "..") ok = false;
+  if (!ok)
+    return absl::InvalidArgumentError(absl::StrCat("robot_id '", robot_id.substr(0, 80),
+                                                   "' must be 1-64 characters of [A-Za-z0-9_.-]"));
+  return absl::OkStatus();
+}
+
+SessionManager::SessionManager(SessionManagerOptions options) : options_(std::move(options)) {}
+
+SessionManager::~SessionManager() { CloseAll(/*save=*/false).IgnoreError(); }
+
+std::string SessionManager::RelativeDir(const std::string& robot_id) const {
+  return "sessions/" + robot_id;
+}
+
+std::string SessionManager::AbsoluteDir(const std::string& robot_id) const {
+  return (std::filesystem::path(options_.data_dir) / RelativeDir(robot_id)).string();
+}
+
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
+    const std::string& robot_id, const std::string& preset,
+    const std::vector<std::pair<std::string, std::string>>& overrides) {
+  if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
+  const std::string preset_name = preset.empty() ? options_.default_preset : preset;
+  auto config = MakePreset(preset_name);
+  if (!config.ok())
+    return absl::InvalidArgumentError(absl::StrCat("preset: ", config.status().message()));
+  for (const auto& [key, value] : overrides) {
+    absl::Status s = ApplyOverride(key, value, &*config);
+    if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat("overrides: ", s.message()));
+  }
+  if (absl::Status s = config->Validate(); !s.ok())
+    return absl::InvalidArgumentError(absl::StrCat("overrides: ", s.message()));
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (sessions_.count(robot_id) || pending_.count(robot_id))
+      return absl::AlreadyExistsError(absl::StrCat("session ", robot_id, " already exists"));
+    if (int(sessions_.size() + pending_.size()) >= options_.max_sessions)
+      return absl::ResourceExhaustedError(absl::StrCat(
+          "session limit reached: ", options_.max_sessions, " sessions (--max-sessions)"));
+    pending_[robot_id] = true;
+  }
+  SessionOptions session_options;
+  session_options.queue_length = options_.queue_length;
+  auto session = Session::Create(robot_id, *config, session_options);
+  std::lock_guard<std::mutex> lock(mu_);
+  pending_.erase(robot_id);
+  if (!session.ok()) return session.status();
+  std::shared_ptr<Session> shared(std::move(*session));
+  sessions_[robot_id] = shared;
+  return shared;
+}
+
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& robot_id) const {
+  if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = sessions_.find(robot_id);
+  if (it == sessions_.end())
+    return absl::NotFoundError(absl::StrCat("no session for robot_id ", robot_id));
+  return it->second;
+}
+
+std::vector<std::shared_ptr<Session>> SessionManager::List() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<std::shared_ptr<Session>> out;
+  for (const auto& [id, session] : sessions_) out.push_back(session);
+  return out;
+}
+
+absl::Status SessionManager::SaveLocked(Session& session) {
+  std::error_code ec;
+  const std::string dir = AbsoluteDir(session.robot_id());
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir, ": ", ec.message()));
+  return session.mapper().Save(dir);
+}
+
+absl::Status SessionManager::Close(const std::string& robot_id, bool save) {
+  std::shared_ptr<Session> session;
+  {
+    auto found = Get(robot_id);
+    if (!found.ok()) return found.status();
+    std::lock_guard<std::mutex> lock(mu_);
+    sessions_.erase(robot_id);
+    session = *found;
+  }
+  session->Close();  // drains first: everything accepted is in the map before saving
+  return save ? SaveLocked(*session) : absl::OkStatus();
+}
+
+absl::StatusOr<std::string> SessionManager::Save(const std::string& robot_id) {
+  auto session = Get(robot_id);
+  if (!session.ok()) return session.status();
+  if (absl::Status s = SaveLocked(**session); !s.ok()) return s;
+  return RelativeDir(robot_id);
+}
+
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string& robot_id) {
+  if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
+  const std::string dir = AbsoluteDir(robot_id);
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (sessions_.count(robot_id) || pending_.count(robot_id))
+      return absl::AlreadyExistsError(absl::StrCat("session ", robot_id, " is already open"));
+    if (int(sessions_.size() + pending_.size()) >= options_.max_sessions)
+      return absl::ResourceExhaustedError(absl::StrCat(
+          "session limit reached: ", options_.max_sessions, " sessions (--max-sessions)"));
+    std::error_code ec;
+    if (!std::filesystem::is_directory(dir, ec))
+      return absl::NotFoundError(absl::StrCat("no saved session for robot_id ", robot_id));
+    pending_[robot_id] = true;
+  }
+  auto mapper = Mapper::Load(dir);
+  std::lock_guard<std::mutex> lock(mu_);
+  pending_.erase(robot_id);
+  if (!mapper.ok()) return mapper.status();
+  SessionOptions session_options;
+  session_options.queue_length = options_.queue_length;
+  std::shared_ptr<Session> shared = Session::Adopt(robot_id, std::move(*mapper), session_options);
+  sessions_[robot_id] = shared;
+  return shared;
+}
+
+absl::Status SessionManager::CloseAll(bool save) {
+  std::map<std::string, std::shared_ptr<Session>> sessions;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    sessions.swap(sessions_);
+  }
+  absl::Status first;
+  for (auto& [id, session] : sessions) {
+    session->Close();
+    if (save) {
+      absl::Status s = SaveLocked(*session);
+      if (!s.ok() && first.ok()) first = s;
+    }
+  }
+  return first;
+}
+
+}  // namespace rim::server

@@ -1,0 +1,68 @@
+// The service's sessions by robot id (DESIGN.md §5.1-5.3): creation from a preset and overrides
+// under the --max-sessions limit, lookup, close, and checkpoints under
+// <data-dir>/sessions/<robot_id>/. Thread-safe. Sessions are shared with the handlers using them,
+// so closing one never pulls it from under an in-flight RPC.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "server/session.h"
+
+namespace rim::server {
+
+struct SessionManagerOptions {
+  std::string data_dir;
+  std::string default_preset = "maicity";
+  int max_sessions = 16;
+  int queue_length = 8;
+};
+
+// OK for 1-64 characters of [A-Za-z0-9_.-]; otherwise INVALID_ARGUMENT naming robot_id.
+absl::Status ValidateRobotId(const std::string& robot_id);
+
+class SessionManager {
+ public:
+  explicit SessionManager(SessionManagerOptions options);
+  ~SessionManager();  // closes every session (drains, no save)
+
+  // ALREADY_EXISTS for a duplicate id, RESOURCE_EXHAUSTED over max_sessions, INVALID_ARGUMENT for
+  // a bad id, preset or override (naming it). An empty preset is the server default.
+  absl::StatusOr<std::shared_ptr<Session>> Create(
+      const std::string& robot_id, const std::string& preset,
+      const std::vector<std::pair<std::string, std::string>>& overrides);
+  // NOT_FOUND for an unknown session.
+  absl::StatusOr<std::shared_ptr<Session>> Get(const std::string& robot_id) const;
+  // Every session, ordered by robot id.
+  std::vector<std::shared_ptr<Session>> List() const;
+  // Drains and stops the session, after saving it when `save` is set; it is removed even if the
+  // save fails (the error is returned).
+  absl::Status Close(const std::string& robot_id, bool save);
+  // Writes a checkpoint; returns its directory relative to the data dir.
+  absl::StatusOr<std::string> Save(const std::string& robot_id);
+  // Restores a saved session: ALREADY_EXISTS when it is open, NOT_FOUND when never saved.
+  absl::StatusOr<std::shared_ptr<Session>> Load(const std::string& robot_id);
+  // Closes every session (for shutdown), saving each when `save` is set; returns the first error.
+  absl::Status CloseAll(bool save);
+
+  const SessionManagerOptions& options() const { return options_; }
+
+ private:
+  std::string RelativeDir(const std::string& robot_id) const;
+  std::string AbsoluteDir(const std::string& robot_id) const;
+  absl::Status SaveLocked(Session& session);
+
+  const SessionManagerOptions options_;
+  mutable std::mutex mu_;
+  std::map<std::string, std::shared_ptr<Session>> sessions_;
+  // Ids being created or loaded (outside the lock), counted against the limit.
+  std::map<std::string, bool> pending_;
+};
+
+}  // namespace rim::server

@@ -1,0 +1,334 @@
+// rim_server end to end: starts the real binary on a loopback port with a temporary data dir,
+// creates a session, streams synthetic LiDAR scans of an analytic scene (one of them invalid),
+// queries the SDF, fetches Draco mesh tiles, checks the documented error codes, and stops the
+// server with SIGTERM.
+#include <fcntl.h>
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "rim/v1/rim.grpc.pb.h"
+#include "server/mesh_codec.h"
+#include "support/analytic_scene.h"
+#include "support/temp_dir.h"
+
+namespace rim::server {
+namespace {
+
+using testing_support::AnalyticScene;
+using testing_support::LidarModel;
+
+constexpr char kRobot[] = "robot_1";
+constexpr int kScans = 10;
+
+// The server process: started in SetUpTestSuite, stopped by the last test (SIGTERM).
+pid_t g_pid = -1;
+std::unique_ptr<rim::v1::Rim::Stub> g_stub;
+
+AnalyticScene Scene() {
+  AnalyticScene scene;
+  scene.ground_z = 0.f;
+  scene.boxes.push_back({Eigen::Vector3f(1.0f, -0.6f, -0.1f), Eigen::Vector3f(1.6f, 0.6f, 1.2f)});
+  return scene;
+}
+
+std::vector<Eigen::Isometry3f> Poses() {
+  return testing_support::StraightTrajectory(-0.5f, 0.4f, kScans, 1.0f);
+}
+
+std::string Pack(const std::vector<Eigen::Vector3f>& points) {
+  std::string out(points.size() * 12, '\0');
+  for (size_t i = 0; i < points.size(); ++i) std::memcpy(&out[12 * i], points[i].data(), 12);
+  return out;
+}
+
+rim::v1::Scan MakeScan(uint64_t sequence, const Eigen::Isometry3f& pose,
+                       const std::vector<Eigen::Vector3f>& points) {
+  rim::v1::Scan scan;
+  scan.set_robot_id(kRobot);
+  scan.set_sequence(sequence);
+  scan.set_timestamp_s(0.1 * double(sequence));
+  const Eigen::Quaternionf q(pose.rotation());
+  auto* p = scan.mutable_pose();
+  p->mutable_translation()->set_x(pose.translation().x());
+  p->mutable_translation()->set_y(pose.translation().y());
+  p->mutable_translation()->set_z(pose.translation().z());
+  p->mutable_rotation()->set_w(q.w());
+  p->mutable_rotation()->set_x(q.x());
+  p->mutable_rotation()->set_y(q.y());
+  p->mutable_rotation()->set_z(q.z());
+  scan.set_points_xyz(Pack(points));
+  return scan;
+}
+
+class ServerE2eTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    const std::string data_dir = testing_support::MakeTempDir("rim_server_e2e");
+    int out[2];
+    ASSERT_EQ(pipe(out), 0);
+    g_pid = fork();
+    ASSERT_GE(g_pid, 0);
+    if (g_pid == 0) {
+      dup2(out[1], STDOUT_FILENO);
+      close(out[0]);
+      close(out[1]);
+      execl(RIM_SERVER_BIN, RIM_SERVER_BIN, "--listen", "127.0.0.1:0", "--data-dir",
+            data_dir.c_str(), "--max-sessions", "4", nullptr);
+      _exit(127);
+    }
+    close(out[1]);
+    // Wait for "rim_server listening on HOST:PORT".
+    std::string text;
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+    std::string address;
+    while (address.empty() && std::chrono::steady_clock::now() < deadline) {
+      pollfd fd{out[0], POLLIN, 0};
+      if (poll(&fd, 1, 500) <= 0) continue;
+      char buf[256];
+      const ssize_t n = read(out[0], buf, sizeof(buf));
+      if (n <= 0) break;
+      text.append(buf, size_t(n));
+      const size_t at = text.find("listening on ");
+      const size_t eol = at == std::string::npos ? at : text.find('\n', at);
+      if (eol != std::string::npos) address = text.substr(at + 13, eol - at - 13);
+    }
+    close(out[0]);
+    ASSERT_FALSE(address.empty()) << "rim_server did not start: " << text;
+    auto channel = grpc::CreateChannel(address, grpc::InsecureChannelCredentials());
+    ASSERT_TRUE(
+        channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(10)));
+    g_stub = rim::v1::Rim::NewStub(channel);
+  }
+
+  static void TearDownTestSuite() {
+    g_stub.reset();
+    if (g_pid > 0) {
+      kill(g_pid, SIGKILL);
+      waitpid(g_pid, nullptr, 0);
+      g_pid = -1;
+    }
+  }
+};
+
+TEST_F(ServerE2eTest, ServerInfo) {
+  grpc::ClientContext ctx;
+  rim::v1::ServerInfo info;
+  ASSERT_TRUE(g_stub->GetServerInfo(&ctx, rim::v1::GetServerInfoRequest(), &info).ok());
+  EXPECT_EQ(info.build(), "cpu");
+  EXPECT_EQ(info.max_sessions(), 4u);
+  EXPECT_GE(info.presets_size(), 5);
+}
+
+TEST_F(ServerE2eTest, CreateSessionAndErrors) {
+  rim::v1::CreateSessionRequest request;
+  request.set_robot_id(kRobot);
+  for (const auto& [k, v] :
+       std::vector<std::pair<std::string, std::string>>{{"grid.half_extent_x_m", "2"},
+                                                        {"grid.half_extent_y_m", "2"},
+                                                        {"grid.z_min_m", "-1.2"},
+                                                        {"grid.z_max_m", "1.2"},
+                                                        {"train.iterations", "15"},
+                                                        {"sampler.rays_per_iteration", "512"}}) {
+    auto* o = request.add_overrides();
+    o->set_key(k);
+    o->set_value(v);
+  }
+  {
+    grpc::ClientContext ctx;
+    rim::v1::SessionInfo info;
+    const grpc::Status s = g_stub->CreateSession(&ctx, request, &info);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+    EXPECT_EQ(info.robot_id(), kRobot);
+    EXPECT_NE(info.config().find("train.iterations = 15"), std::string::npos) << info.config();
+  }
+  {
+    grpc::ClientContext ctx;
+    rim::v1::SessionInfo info;
+    EXPECT_EQ(g_stub->CreateSession(&ctx, request, &info).error_code(),
+              grpc::StatusCode::ALREADY_EXISTS);
+  }
+  {
+    grpc::ClientContext ctx;
+    rim::v1::CreateSessionRequest bad;
+    bad.set_robot_id("bad id!");
+    rim::v1::SessionInfo info;
+    const grpc::Status s = g_stub->CreateSession(&ctx, bad, &info);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("robot_id"), std::string::npos);
+  }
+  {
+    grpc::ClientContext ctx;
+    rim::v1::CreateSessionRequest bad;
+    bad.set_robot_id("other");
+    auto* o = bad.add_overrides();
+    o->set_key("train.no_such_key");
+    o->set_value("1");
+    rim::v1::SessionInfo info;
+    const grpc::Status s = g_stub->CreateSession(&ctx, bad, &info);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("train.no_such_key"), std::string::npos) << s.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    rim::v1::GetSessionRequest get;
+    get.set_robot_id("nobody");
+    rim::v1::SessionInfo info;
+    EXPECT_EQ(g_stub->GetSession(&ctx, get, &info).error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+}
+
+TEST_F(ServerE2eTest, StreamScansAcksAndRejects) {
+  const AnalyticScene scene = Scene();
+  LidarModel lidar;
+  lidar.beams = 16;
+  lidar.columns = 360;
+  lidar.max_range_m = 6.f;
+  lidar.elev_min_deg = -60.f;  // the ground near the sensor, inside the 2 m local map
+  const auto poses = Poses();
+  grpc::ClientContext ctx;
+  auto stream = g_stub->StreamScans(&ctx);
+  std::map<uint64_t, std::vector<int>> states;  // sequence -> ack states in order
+  std::map<uint64_t, std::string> reasons;
+  std::thread reader([&] {
+    rim::v1::ScanAck ack;
+    while (stream->Read(&ack)) {
+      states[ack.sequence()].push_back(ack.state());
+      if (ack.state() == rim::v1::ScanAck::REJECTED) reasons[ack.sequence()] = ack.reason();
+    }
+  });
+  uint64_t sequence = 0;
+  for (int i = 0; i < kScans; ++i) {
+    const auto points = testing_support::SimulateScan(scene, lidar, poses[i], 100 + i);
+    ASSERT_GT(points.size(), 1000u);
+    ASSERT_TRUE(stream->Write(MakeScan(sequence++, poses[i], points)));
+    if (i == 4) {  // a NaN point and a bad quaternion in the middle: rejected, the stream goes on
+      auto bad_points = points;
+      bad_points[7].x() = std::numeric_limits<float>::quiet_NaN();
+      ASSERT_TRUE(stream->Write(MakeScan(1000, poses[i], bad_points)));
+      rim::v1::Scan bad_pose = MakeScan(1001, poses[i], points);
+      bad_pose.mutable_pose()->mutable_rotation()->set_w(2.0);
+      ASSERT_TRUE(stream->Write(bad_pose));
+    }
+  }
+  stream->WritesDone();
+  reader.join();
+  const grpc::Status status = stream->Finish();
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  for (uint64_t s = 0; s < kScans; ++s) {
+    EXPECT_EQ(states[s],
+              (std::vector<int>{rim::v1::ScanAck::ACCEPTED, rim::v1::ScanAck::INTEGRATED}))
+        << "scan " << s;
+  }
+  EXPECT_EQ(states[1000], std::vector<int>{rim::v1::ScanAck::REJECTED});
+  EXPECT_NE(reasons[1000].find("scan.points_xyz"), std::string::npos) << reasons[1000];
+  EXPECT_EQ(states[1001], std::vector<int>{rim::v1::ScanAck::REJECTED});
+  EXPECT_NE(reasons[1001].find("scan.pose.rotation is not a unit quaternion"), std::string::npos)
+      << reasons[1001];
+
+  grpc::ClientContext get_ctx;
+  rim::v1::GetSessionRequest get;
+  get.set_robot_id(kRobot);
+  rim::v1::SessionInfo info;
+  ASSERT_TRUE(g_stub->GetSession(&get_ctx, get, &info).ok());
+  EXPECT_EQ(info.integrated_frames(), uint64_t(kScans));
+  EXPECT_EQ(info.accepted_frames(), uint64_t(kScans));
+  EXPECT_EQ(info.rejected_frames(), 2u);
+  EXPECT_GT(info.map_version(), 0u);
+}
+
+TEST_F(ServerE2eTest, QuerySdfAtSurface) {
+  const AnalyticScene scene = Scene();
+  const auto surface = scene.SampleSurface(Eigen::Vector3f(-1.2f, -1.2f, -0.2f),
+                                           Eigen::Vector3f(1.2f, 1.2f, 1.f), 500, 7);
+  ASSERT_GT(surface.size(), 100u);
+  std::vector<Eigen::Vector3f> points;
+  for (const auto& s : surface) points.push_back(s.p);
+  rim::v1::QuerySdfRequest request;
+  request.set_robot_id(kRobot);
+  request.set_points_xyz(Pack(points));
+  request.set_want_gradient(true);
+  grpc::ClientContext ctx;
+  rim::v1::QuerySdfResponse response;
+  const grpc::Status s = g_stub->QuerySdf(&ctx, request, &response);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_EQ(response.sdf().size(), points.size() * 4);
+  ASSERT_EQ(response.gradient().size(), points.size() * 12);
+  ASSERT_EQ(response.observed().size(), points.size());
+  int observed = 0, close = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (response.observed()[i] == 0) continue;
+    ++observed;
+    float sdf;
+    std::memcpy(&sdf, response.sdf().data() + 4 * i, 4);
+    if (std::abs(sdf) < 0.05f) ++close;
+  }
+  std::printf("observed %d of %zu surface points, %d within 5 cm\n", observed, points.size(),
+              close);
+  EXPECT_GT(observed, int(points.size()) / 2);
+  EXPECT_GT(close, observed * 7 / 10);
+
+  // Bad inputs: wrong length, NaN, unknown session.
+  rim::v1::QuerySdfRequest bad = request;
+  bad.set_points_xyz(request.points_xyz().substr(0, 13));
+  grpc::ClientContext c1;
+  EXPECT_EQ(g_stub->QuerySdf(&c1, bad, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  const float nan[3] = {0.f, std::numeric_limits<float>::quiet_NaN(), 0.f};
+  bad.set_points_xyz(std::string(reinterpret_cast<const char*>(nan), 12));
+  grpc::ClientContext c2;
+  EXPECT_EQ(g_stub->QuerySdf(&c2, bad, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad.set_robot_id("nobody");
+  grpc::ClientContext c3;
+  EXPECT_EQ(g_stub->QuerySdf(&c3, bad, &response).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
+TEST_F(ServerE2eTest, MeshTilesDecode) {
+  rim::v1::GetMeshTilesRequest request;
+  request.set_robot_id(kRobot);
+  grpc::ClientContext ctx;
+  auto reader = g_stub->GetMeshTiles(&ctx, request);
+  rim::v1::MeshTile tile;
+  int tiles = 0;
+  size_t faces = 0;
+  while (reader->Read(&tile)) {
+    ++tiles;
+    auto mesh = DecodeTileDraco(tile.draco());
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    faces += mesh->faces.size();
+    EXPECT_GT(tile.version(), 0u);
+  }
+  ASSERT_TRUE(reader->Finish().ok());
+  EXPECT_GE(tiles, 1);
+  EXPECT_GT(faces, 0u);
+}
+
+// Last (gtest runs tests in definition order): SIGTERM stops the server cleanly.
+TEST_F(ServerE2eTest, SigtermExitsZero) {
+  ASSERT_GT(g_pid, 0);
+  ASSERT_EQ(kill(g_pid, SIGTERM), 0);
+  int status = 0;
+  pid_t done = 0;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
+  while ((done = waitpid(g_pid, &status, WNOHANG)) == 0 &&
+         std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  ASSERT_EQ(done, g_pid) << "rim_server did not exit within 15 s of SIGTERM";
+  g_pid = -1;
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+}
+
+}  // namespace
+}  // namespace rim::server
