@@ -9,20 +9,25 @@ namespace rim::server {
 
 absl::StatusOr<std::unique_ptr<Session>> Session::Create(const std::string& robot_id,
                                                          const MapperConfig& config,
-                                                         const SessionOptions& options) {
+                                                         const SessionOptions& options,
+                                                         std::unique_ptr<WriteAheadLog> wal) {
   auto mapper = Mapper::Create(config);
   if (!mapper.ok()) return mapper.status();
-  return Adopt(robot_id, std::move(*mapper), options);
+  return Adopt(robot_id, std::move(*mapper), options, std::move(wal));
 }
 
 std::unique_ptr<Session> Session::Adopt(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
-                                        const SessionOptions& options) {
-  return std::unique_ptr<Session>(new Session(robot_id, std::move(mapper), options));
+                                        const SessionOptions& options,
+                                        std::unique_ptr<WriteAheadLog> wal) {
+  return std::unique_ptr<Session>(
+      new Session(robot_id, std::move(mapper), options, std::move(wal)));
 }
 
 Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
-                 const SessionOptions& options)
-    : robot_id_(robot_id), mapper_(std::move(mapper)), options_(options) {
+                 const SessionOptions& options, std::unique_ptr<WriteAheadLog> wal)
+    : robot_id_(robot_id), mapper_(std::move(mapper)), options_(options), wal_(std::move(wal)) {
+  next_index_ = uint64_t(mapper_->frames());
+  if (wal_) next_index_ = std::max(next_index_, wal_->next_index());
   stats_.integrated = uint64_t(mapper_->frames());
   stats_.accepted = stats_.integrated;
   stats_.iterations_per_frame = mapper_->config().train.iterations;
@@ -47,6 +52,12 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
   if (queue_.size() >= size_t(options_.queue_length))
     return absl::ResourceExhaustedError(absl::StrCat(
         "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
+  if (wal_) {
+    // Durable before it counts as accepted: a crash after this point loses nothing (§5.3).
+    absl::Status logged = wal_->Append(next_index_, sequence, scan);
+    if (!logged.ok()) return logged;
+  }
+  ++next_index_;
   queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
   ++stats_.accepted;
   stats_.queue_depth = queue_.size();
@@ -62,6 +73,14 @@ void Session::OnSpace(std::function<void()> fn) {
     return;
   }
   space_waiters_.push_back(std::move(fn));
+}
+
+absl::Status Session::Checkpoint(const std::string& dir) {
+  int64_t frames = 0;
+  absl::Status saved = mapper_->Save(dir, &frames);
+  if (!saved.ok()) return saved;
+  std::lock_guard<std::mutex> lock(mu_);
+  return wal_ ? wal_->TruncateBefore(uint64_t(frames)) : absl::OkStatus();
 }
 
 void Session::Drain() {

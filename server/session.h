@@ -17,6 +17,7 @@
 #include "rim/config.h"
 #include "rim/mapper.h"
 #include "rim/scan.h"
+#include "server/wal.h"
 
 namespace rim::server {
 
@@ -48,12 +49,15 @@ class Session {
  public:
   using IntegratedFn = std::function<void(const IntegratedAck&)>;
 
-  static absl::StatusOr<std::unique_ptr<Session>> Create(const std::string& robot_id,
-                                                         const MapperConfig& config,
-                                                         const SessionOptions& options);
-  // Takes over an existing mapper (a loaded session).
+  // With a write-ahead log, Submit() makes every scan durable before accepting it; record indices
+  // count accepted scans, so a checkpoint holding F frames covers the records below F.
+  static absl::StatusOr<std::unique_ptr<Session>> Create(
+      const std::string& robot_id, const MapperConfig& config, const SessionOptions& options,
+      std::unique_ptr<WriteAheadLog> wal = nullptr);
+  // Takes over an existing mapper (a loaded session, its log already replayed).
   static std::unique_ptr<Session> Adopt(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
-                                        const SessionOptions& options);
+                                        const SessionOptions& options,
+                                        std::unique_ptr<WriteAheadLog> wal = nullptr);
   ~Session();  // drains the queue, then stops the trainer
 
   // Queues a validated scan. RESOURCE_EXHAUSTED when the queue is full (nothing changed; call
@@ -62,6 +66,8 @@ class Session {
   absl::Status Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated);
   // Registers a one-shot callback run (on the trainer thread) when the queue has room again.
   void OnSpace(std::function<void()> fn);
+  // Saves a checkpoint of the map into `dir`, then drops log records the checkpoint covers.
+  absl::Status Checkpoint(const std::string& dir);
   // Waits until every queued scan is integrated.
   void Drain();
   // Stops accepting, drains, stops the trainer. Idempotent.
@@ -79,7 +85,7 @@ class Session {
 
  private:
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
-          const SessionOptions& options);
+          const SessionOptions& options, std::unique_ptr<WriteAheadLog> wal);
   void Run();
 
   struct Item {
@@ -91,6 +97,8 @@ class Session {
   const std::string robot_id_;
   std::unique_ptr<Mapper> mapper_;
   const SessionOptions options_;
+  std::unique_ptr<WriteAheadLog> wal_;  // guarded by mu_
+  uint64_t next_index_ = 0;             // index of the next accepted scan
 
   mutable std::mutex mu_;
   std::condition_variable cv_;

@@ -3,8 +3,10 @@
 #include <filesystem>
 
 #include "absl/strings/str_cat.h"
+#include "rim/binary_io.h"
 #include "rim/config.h"
 #include "rim/mapper.h"
+#include "rim/status_macros.h"
 
 namespace rim::server {
 
@@ -60,7 +62,7 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   }
   SessionOptions session_options;
   session_options.queue_length = options_.queue_length;
-  auto session = Session::Create(robot_id, *config, session_options);
+  auto session = CreateOnDisk(robot_id, *config, session_options);
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
   if (!session.ok()) return session.status();
@@ -85,12 +87,25 @@ std::vector<std::shared_ptr<Session>> SessionManager::List() const {
   return out;
 }
 
-absl::Status SessionManager::SaveLocked(Session& session) {
+absl::StatusOr<std::unique_ptr<Session>> SessionManager::CreateOnDisk(
+    const std::string& robot_id, const MapperConfig& config, const SessionOptions& options) {
+  const std::string dir = AbsoluteDir(robot_id);
   std::error_code ec;
-  const std::string dir = AbsoluteDir(session.robot_id());
-  std::filesystem::create_directories(dir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir, ": ", ec.message()));
-  return session.mapper().Save(dir);
+  // A folder left by a saved or crashed session is its data: never overwrite it silently.
+  if (std::filesystem::exists(dir + "/CURRENT", ec) ||
+      std::filesystem::exists(dir + "/config.rimf", ec))
+    return absl::FailedPreconditionError(absl::StrCat(
+        "robot_id ", robot_id, " has a saved session in the data directory: LoadSession it"));
+  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  // The config comes first, so that a crash before any checkpoint can still be replayed.
+  RIM_RETURN_IF_ERROR(WriteFileAtomic(dir + "/config.rimf", "CONF", config.ToString()));
+  auto wal = WriteAheadLog::Open(dir + "/wal");
+  if (!wal.ok()) return wal.status();
+  return Session::Create(robot_id, config, options, std::move(*wal));
+}
+
+absl::Status SessionManager::SaveLocked(Session& session) {
+  return session.Checkpoint(AbsoluteDir(session.robot_id()));
 }
 
 absl::Status SessionManager::Close(const std::string& robot_id, bool save) {
@@ -103,7 +118,11 @@ absl::Status SessionManager::Close(const std::string& robot_id, bool save) {
     session = *found;
   }
   session->Close();  // drains first: everything accepted is in the map before saving
-  return save ? SaveLocked(*session) : absl::OkStatus();
+  if (save) return SaveLocked(*session);
+  // Closed without saving: the session is discarded, its log and config with it.
+  std::error_code ec;
+  std::filesystem::remove_all(AbsoluteDir(robot_id), ec);
+  return absl::OkStatus();
 }
 
 absl::StatusOr<std::string> SessionManager::Save(const std::string& robot_id) {
@@ -128,15 +147,38 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
       return absl::NotFoundError(absl::StrCat("no saved session for robot_id ", robot_id));
     pending_[robot_id] = true;
   }
-  auto mapper = Mapper::Load(dir);
+  auto restored = Restore(dir);
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
-  if (!mapper.ok()) return mapper.status();
+  if (!restored.ok()) return restored.status();
   SessionOptions session_options;
   session_options.queue_length = options_.queue_length;
-  std::shared_ptr<Session> shared = Session::Adopt(robot_id, std::move(*mapper), session_options);
+  std::shared_ptr<Session> shared = Session::Adopt(robot_id, std::move(restored->first),
+                                                   session_options, std::move(restored->second));
   sessions_[robot_id] = shared;
   return shared;
+}
+
+absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>>
+SessionManager::Restore(const std::string& dir) {
+  // The last checkpoint if there is one, else a fresh map from the session's config...
+  std::unique_ptr<Mapper> mapper;
+  std::error_code ec;
+  if (std::filesystem::exists(dir + "/CURRENT", ec)) {
+    RIM_ASSIGN_OR_RETURN(mapper, Mapper::Load(dir));
+  } else {
+    RIM_ASSIGN_OR_RETURN(std::string text, ReadFileChecked(dir + "/config.rimf", "CONF"));
+    RIM_ASSIGN_OR_RETURN(MapperConfig config, ParseConfigText(text, dir + "/config.rimf"));
+    RIM_ASSIGN_OR_RETURN(mapper, Mapper::Create(config));
+  }
+  // ...then every scan accepted after it, from the write-ahead log (§5.3: a kill -9 loses no
+  // accepted scan). Replay integrates with the configured iterations.
+  RIM_ASSIGN_OR_RETURN(std::unique_ptr<WriteAheadLog> wal, WriteAheadLog::Open(dir + "/wal"));
+  Mapper* m = mapper.get();
+  RIM_RETURN_IF_ERROR(wal->Replay(uint64_t(m->frames()), [m](uint64_t, uint64_t, PosedScan scan) {
+    return m->IntegrateScan(scan);
+  }));
+  return std::make_pair(std::move(mapper), std::move(wal));
 }
 
 absl::Status SessionManager::CloseAll(bool save) {

@@ -57,6 +57,13 @@ class SessionManager {
   std::string RelativeDir(const std::string& robot_id) const;
   std::string AbsoluteDir(const std::string& robot_id) const;
   absl::Status SaveLocked(Session& session);
+  // A new session folder: config, empty write-ahead log.
+  absl::StatusOr<std::unique_ptr<Session>> CreateOnDisk(const std::string& robot_id,
+                                                        const MapperConfig& config,
+                                                        const SessionOptions& options);
+  // The mapper of a saved or crashed session, its log replayed, and the log.
+  static absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>> Restore(
+      const std::string& dir);
 
   const SessionManagerOptions options_;
   mutable std::mutex mu_;

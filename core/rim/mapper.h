@@ -97,8 +97,9 @@ class Mapper {
   // Observed finest voxels of one sub-map (minimum-corner lattice indices): what its tile meshes.
   std::vector<Int3> ObservedVoxels(const Int3& key) const;
 
-  // Writes the whole state under `dir` as a new checkpoint, switched to atomically.
-  absl::Status Save(const std::string& dir) const;
+  // Writes the whole state under `dir` as a new checkpoint, switched to atomically. With
+  // `frames_saved`, also says how many frames the checkpoint holds (for log truncation).
+  absl::Status Save(const std::string& dir, int64_t* frames_saved = nullptr) const;
 
   const MapperConfig& config() const { return config_; }
   MapperStats Stats() const;

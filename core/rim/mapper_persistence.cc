@@ -143,10 +143,11 @@ absl::Status Mapper::LoadState(const std::string& path) {
   return absl::OkStatus();
 }
 
-absl::Status Mapper::Save(const std::string& dir) const {
+absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
   saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
+  if (frames_saved) *frames_saved = frames_;
   int next = 0;
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(dir, ec))
