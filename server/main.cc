@@ -49,6 +49,7 @@ int Run(int argc, char** argv) {
   manager_options.default_preset = config->default_preset;
   manager_options.max_sessions = config->max_sessions;
   manager_options.queue_length = config->queue_length;
+  manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
   rim::server::SessionManager sessions(manager_options);
 
   rim::server::ServiceLimits limits;

@@ -38,6 +38,8 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 1, &c->max_sessions);
   } else if (name == "queue-length") {
     return ParseInt(name, value, 1, &c->queue_length);
+  } else if (name == "checkpoint-every") {
+    return ParseInt(name, value, 0, &c->checkpoint_every_frames);
   } else if (name == "max-query-points") {
     return ParseInt(name, value, 1, &c->max_query_points);
   } else if (name == "max-points-per-scan") {
@@ -80,7 +82,8 @@ absl::Status ApplyFile(const std::string& path, ServerConfig* c) {
 std::string ServerUsage() {
   return "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE]\n"
          "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
-         "                  [--max-query-points N] [--max-points-per-scan N]\n";
+         "                  [--max-query-points N] [--max-points-per-scan N]\n"
+         "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n";
 }
 
 std::string ServerConfig::ToString() const {
@@ -92,6 +95,7 @@ std::string ServerConfig::ToString() const {
     << "preset = " << default_preset << "\n"
     << "max_sessions = " << max_sessions << "\n"
     << "queue_length = " << queue_length << "\n"
+    << "checkpoint_every_frames = " << checkpoint_every_frames << "\n"
     << "max_query_points = " << max_query_points << "\n"
     << "max_points_per_scan = " << max_points_per_scan << "\n"
     << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n";

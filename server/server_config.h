@@ -18,6 +18,7 @@ struct ServerConfig {
   std::string default_preset = "maicity";
   int max_sessions = 16;
   int queue_length = 8;
+  int checkpoint_every_frames = 100;  // 0: only on SaveSession, close and shutdown
   int max_query_points = 1 << 20;
   int max_points_per_scan = 1 << 21;
   uint64_t host_memory_budget_bytes = 0;  // 0: no budget enforced

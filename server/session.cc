@@ -103,6 +103,11 @@ SessionStats Session::Stats() const {
   return stats_;
 }
 
+absl::Status Session::last_checkpoint_status() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return last_checkpoint_;
+}
+
 void Session::CountRejected() {
   std::lock_guard<std::mutex> lock(mu_);
   ++stats_.rejected;
@@ -143,7 +148,16 @@ void Session::Run() {
     ack.map_version = mapper_->map_version();
     ack.queue_depth = queue_.size();
     ack.lag_frames = stats_.accepted - stats_.integrated - stats_.failed;
+    const bool checkpoint = options_.checkpoint_every_frames > 0 &&
+                            !options_.checkpoint_dir.empty() && status.ok() &&
+                            mapper_->frames() % options_.checkpoint_every_frames == 0;
     lock.unlock();
+    if (checkpoint) {
+      // On the trainer thread, between frames: nothing trains while the checkpoint is written.
+      const absl::Status saved = Checkpoint(options_.checkpoint_dir);
+      std::lock_guard<std::mutex> relock(mu_);
+      last_checkpoint_ = saved;
+    }
     // The ack goes out before the item counts as done, so Drain() returns only after it.
     if (item.on_integrated) item.on_integrated(ack);
     lock.lock();

@@ -25,6 +25,10 @@ struct SessionOptions {
   // Accepted scans waiting for training. When full, Submit() says so and the stream handler stops
   // reading until OnSpace fires: backpressure reaches the robot through gRPC flow control.
   int queue_length = 8;
+  // The trainer writes a checkpoint into checkpoint_dir every this many integrated frames and
+  // truncates the write-ahead log, so that the log (and replay after a crash) stays short.
+  int checkpoint_every_frames = 0;  // 0: never on its own
+  std::string checkpoint_dir;
 };
 
 struct IntegratedAck {
@@ -81,6 +85,8 @@ class Session {
   Mapper& mapper() { return *mapper_; }
   const Mapper& mapper() const { return *mapper_; }
   SessionStats Stats() const;
+  // The outcome of the last periodic checkpoint (OK if none failed).
+  absl::Status last_checkpoint_status() const;
   void CountRejected();
 
  private:
@@ -107,6 +113,7 @@ class Session {
   bool closing_ = false;
   std::vector<std::function<void()>> space_waiters_;
   SessionStats stats_;
+  absl::Status last_checkpoint_;
   std::thread trainer_;
 };
 

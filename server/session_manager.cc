@@ -62,6 +62,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   }
   SessionOptions session_options;
   session_options.queue_length = options_.queue_length;
+  session_options.checkpoint_every_frames = options_.checkpoint_every_frames;
+  session_options.checkpoint_dir = AbsoluteDir(robot_id);
   auto session = CreateOnDisk(robot_id, *config, session_options);
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
@@ -153,6 +155,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
   if (!restored.ok()) return restored.status();
   SessionOptions session_options;
   session_options.queue_length = options_.queue_length;
+  session_options.checkpoint_every_frames = options_.checkpoint_every_frames;
+  session_options.checkpoint_dir = AbsoluteDir(robot_id);
   std::shared_ptr<Session> shared = Session::Adopt(robot_id, std::move(restored->first),
                                                    session_options, std::move(restored->second));
   sessions_[robot_id] = shared;

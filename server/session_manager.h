@@ -22,6 +22,7 @@ struct SessionManagerOptions {
   std::string default_preset = "maicity";
   int max_sessions = 16;
   int queue_length = 8;
+  int checkpoint_every_frames = 100;
 };
 
 // OK for 1-64 characters of [A-Za-z0-9_.-]; otherwise INVALID_ARGUMENT naming robot_id.
