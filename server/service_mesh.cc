@@ -1,5 +1,6 @@
 // GetMeshTiles: a server-streaming reactor that meshes and Draco-encodes one tile per write, so
 // only one tile's payload is in memory at a time.
+#include <array>
 #include <memory>
 #include <vector>
 
@@ -49,25 +50,18 @@ class MeshTilesReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
       return;
     }
     const TileInfo& tile = tiles_[next_++];
-    auto mesh = session_->mapper().ExtractMeshTile(tile.key);
-    if (!mesh.ok()) {
-      Finish(ToGrpcStatus(mesh.status()));
+    auto encoded = session_->tiles().Get(session_->mapper(), tile);
+    if (!encoded.ok()) {
+      Finish(ToGrpcStatus(encoded.status()));
       return;
     }
     const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
     const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-    auto draco = EncodeTileDraco(*mesh, lo, hi);
-    if (!draco.ok()) {
-      Finish(ToGrpcStatus(
-          absl::InternalError(absl::StrCat("encoding tile (", tile.key.x(), ",", tile.key.y(), ",",
-                                           tile.key.z(), "): ", draco.status().message()))));
-      return;
-    }
     out_.Clear();
     out_.set_key_x(tile.key.x());
     out_.set_key_y(tile.key.y());
     out_.set_key_z(tile.key.z());
-    out_.set_version(tile.version);
+    out_.set_version((*encoded)->version);
     auto* bounds = out_.mutable_bounds();
     bounds->mutable_min()->set_x(lo[0]);
     bounds->mutable_min()->set_y(lo[1]);
@@ -75,9 +69,9 @@ class MeshTilesReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
     bounds->mutable_max()->set_x(hi[0]);
     bounds->mutable_max()->set_y(hi[1]);
     bounds->mutable_max()->set_z(hi[2]);
-    out_.set_draco(std::move(*draco));
-    out_.set_vertex_count(uint32_t(mesh->vertices.size()));
-    out_.set_face_count(uint32_t(mesh->faces.size()));
+    out_.set_draco((*encoded)->draco);
+    out_.set_vertex_count((*encoded)->vertex_count);
+    out_.set_face_count((*encoded)->face_count);
     StartWrite(&out_);
   }
 

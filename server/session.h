@@ -17,6 +17,7 @@
 #include "rim/config.h"
 #include "rim/mapper.h"
 #include "rim/scan.h"
+#include "server/tile_cache.h"
 #include "server/wal.h"
 
 namespace rim::server {
@@ -82,6 +83,7 @@ class Session {
   int AdaptiveIterations(size_t queue_depth) const;
 
   const std::string& robot_id() const { return robot_id_; }
+  TileCache& tiles() { return tiles_; }
   Mapper& mapper() { return *mapper_; }
   const Mapper& mapper() const { return *mapper_; }
   SessionStats Stats() const;
@@ -114,6 +116,7 @@ class Session {
   std::vector<std::function<void()>> space_waiters_;
   SessionStats stats_;
   absl::Status last_checkpoint_;
+  TileCache tiles_;
   std::thread trainer_;
 };
 

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "server/session.h"
+#include "server/tile_cache.h"
 #include "support/analytic_scene.h"
 #include "support/temp_dir.h"
 
@@ -117,6 +118,32 @@ TEST(SessionTest, CloseDrainsEveryAcceptedScanThenRefuses) {
   EXPECT_EQ((*session)->mapper().frames(), 6);
   EXPECT_EQ((*session)->Submit(7, Scan(0.f), nullptr).code(),
             absl::StatusCode::kFailedPrecondition);
+}
+
+TEST(TileCacheTest, ReencodesOnlyWhenTheVersionMoves) {
+  auto mapper = Mapper::Create(SmallConfig());
+  ASSERT_TRUE(mapper.ok());
+  ASSERT_TRUE((*mapper)->IntegrateScan(Scan(0.f)).ok());
+  TileCache cache;
+  const std::vector<TileInfo> tiles = (*mapper)->ListTiles(0);
+  ASSERT_FALSE(tiles.empty());
+  auto first = cache.Get(**mapper, tiles[0]);
+  ASSERT_TRUE(first.ok());
+  auto again = cache.Get(**mapper, tiles[0]);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(first->get(), again->get());  // same version: the cached bytes
+  EXPECT_EQ(cache.hits(), 1u);
+  EXPECT_EQ(cache.misses(), 1u);
+  ASSERT_TRUE((*mapper)->IntegrateScan(Scan(0.1f)).ok());
+  TileInfo moved = tiles[0];
+  for (const TileInfo& t : (*mapper)->ListTiles(0))
+    if (t.key == tiles[0].key) moved = t;
+  ASSERT_GT(moved.version, tiles[0].version);
+  auto newer = cache.Get(**mapper, moved);
+  ASSERT_TRUE(newer.ok());
+  EXPECT_NE(newer->get(), first->get());
+  EXPECT_EQ((*newer)->version, moved.version);
+  EXPECT_EQ(cache.misses(), 2u);
 }
 
 TEST(SessionTest, PeriodicCheckpointsKeepTheLogShort) {

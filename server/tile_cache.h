@@ -1,0 +1,41 @@
+// Draco-encoded mesh tiles cached per sub-map version (DESIGN.md §3.6, §5.1): a tile is
+// re-meshed and re-encoded only when its version moved since it was last encoded.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+
+#include "absl/status/statusor.h"
+#include "rim/mapper.h"
+#include "rim/types.h"
+
+namespace rim::server {
+
+struct EncodedTile {
+  uint64_t version = 0;
+  std::string draco;
+  uint32_t vertex_count = 0;
+  uint32_t face_count = 0;
+};
+
+class TileCache {
+ public:
+  // The tile at `tile.version` or newer: from the cache when its encoding is that recent,
+  // otherwise meshed and encoded now (a tile that changes while being meshed is tagged with the
+  // version read before, so it is simply re-encoded next time).
+  absl::StatusOr<std::shared_ptr<const EncodedTile>> Get(const Mapper& mapper,
+                                                         const TileInfo& tile);
+
+  uint64_t hits() const;
+  uint64_t misses() const;
+
+ private:
+  mutable std::mutex mu_;
+  std::unordered_map<Int3, std::shared_ptr<const EncodedTile>, Int3Hash, Int3Equal> tiles_;
+  uint64_t hits_ = 0, misses_ = 0;
+};
+
+}  // namespace rim::server
