@@ -103,21 +103,21 @@ grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScan
   return NewScanStreamReactor(sessions_, limits_);
 }
 
-grpc::ServerUnaryReactor* RimService::QuerySdf(grpc::CallbackServerContext* ctx,
-                                               const rim::v1::QuerySdfRequest* request,
-                                               rim::v1::QuerySdfResponse* response) {
+absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
+                         const rim::v1::QuerySdfRequest& request,
+                         rim::v1::QuerySdfResponse* response) {
   const auto start = std::chrono::steady_clock::now();
-  auto session = sessions_->Get(request->robot_id());
-  if (!session.ok()) return Done(ctx, session.status());
-  auto xyz = UnpackXyz(request->points_xyz(), "points_xyz", size_t(limits_.max_query_points),
+  auto session = sessions.Get(request.robot_id());
+  if (!session.ok()) return session.status();
+  auto xyz = UnpackXyz(request.points_xyz(), "points_xyz", size_t(limits.max_query_points),
                        "--max-query-points; use StreamQuerySdf for larger batches");
-  if (!xyz.ok()) return Done(ctx, xyz.status());
+  if (!xyz.ok()) return xyz.status();
   const size_t n = xyz->size() / 3;
   QueryResult result;
-  absl::Status s = (*session)->mapper().QuerySdf(xyz->data(), n, request->want_gradient(), &result);
-  if (!s.ok()) return Done(ctx, s);
+  absl::Status s = (*session)->mapper().QuerySdf(xyz->data(), n, request.want_gradient(), &result);
+  if (!s.ok()) return s;
   response->set_sdf(reinterpret_cast<const char*>(result.sdf.data()), result.sdf.size() * 4);
-  if (request->want_gradient())
+  if (request.want_gradient())
     response->set_gradient(reinterpret_cast<const char*>(result.gradient.data()),
                            result.gradient.size() * 4);
   response->set_observed(reinterpret_cast<const char*>(result.observed.data()),
@@ -125,7 +125,18 @@ grpc::ServerUnaryReactor* RimService::QuerySdf(grpc::CallbackServerContext* ctx,
   response->set_map_version(result.map_version);
   response->set_server_seconds(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-  return Done(ctx, absl::OkStatus());
+  return absl::OkStatus();
+}
+
+grpc::ServerUnaryReactor* RimService::QuerySdf(grpc::CallbackServerContext* ctx,
+                                               const rim::v1::QuerySdfRequest* request,
+                                               rim::v1::QuerySdfResponse* response) {
+  return Done(ctx, AnswerQuery(*sessions_, limits_, *request, response));
+}
+
+grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>*
+RimService::StreamQuerySdf(grpc::CallbackServerContext* ctx) {
+  return NewQueryStreamReactor(sessions_, limits_);
 }
 
 grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::GetMeshTiles(

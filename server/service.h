@@ -47,6 +47,8 @@ class RimService final : public rim::v1::Rim::CallbackService {
   grpc::ServerUnaryReactor* QuerySdf(grpc::CallbackServerContext* ctx,
                                      const rim::v1::QuerySdfRequest* request,
                                      rim::v1::QuerySdfResponse* response) override;
+  grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* StreamQuerySdf(
+      grpc::CallbackServerContext* ctx) override;
   grpc::ServerWriteReactor<rim::v1::MeshTile>* GetMeshTiles(
       grpc::CallbackServerContext* ctx, const rim::v1::GetMeshTilesRequest* request) override;
   grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* ctx,
@@ -63,6 +65,12 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
 
 // The StreamScans reactor (service_stream.cc) and the GetMeshTiles reactor (service_mesh.cc).
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
+    SessionManager* sessions, const ServiceLimits& limits);
+// One query (unary, or one message of a query stream): points limited to max_query_points.
+absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
+                         const rim::v1::QuerySdfRequest& request,
+                         rim::v1::QuerySdfResponse* response);
+grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
     SessionManager* sessions, const ServiceLimits& limits);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewMeshTilesReactor(
     SessionManager* sessions, const rim::v1::GetMeshTilesRequest& request);

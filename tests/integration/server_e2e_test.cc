@@ -306,6 +306,49 @@ TEST_F(ServerE2eTest, QuerySdfAtSurface) {
   EXPECT_EQ(g_stub->QuerySdf(&c3, bad, &response).error_code(), grpc::StatusCode::NOT_FOUND);
 }
 
+TEST_F(ServerE2eTest, StreamQuerySdfAnswersEachChunkLikeTheUnaryCall) {
+  // Three chunks of a larger batch; each answer must equal the unary answer for that chunk.
+  std::vector<rim::v1::QuerySdfRequest> chunks;
+  for (int c = 0; c < 3; ++c) {
+    std::vector<Eigen::Vector3f> points;
+    for (int i = 0; i < 200; ++i)
+      points.emplace_back(-1.f + 0.01f * float(i), 0.3f * float(c) - 0.3f, 0.05f + 0.1f * float(c));
+    rim::v1::QuerySdfRequest r;
+    r.set_robot_id(kRobot);
+    r.set_points_xyz(Pack(points));
+    r.set_want_gradient(c == 1);
+    chunks.push_back(r);
+  }
+  grpc::ClientContext ctx;
+  auto stream = g_stub->StreamQuerySdf(&ctx);
+  for (const auto& r : chunks) ASSERT_TRUE(stream->Write(r));
+  stream->WritesDone();
+  std::vector<rim::v1::QuerySdfResponse> answers;
+  rim::v1::QuerySdfResponse a;
+  while (stream->Read(&a)) answers.push_back(a);
+  const grpc::Status s = stream->Finish();
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_EQ(answers.size(), chunks.size());
+  for (size_t c = 0; c < chunks.size(); ++c) {
+    grpc::ClientContext uctx;
+    rim::v1::QuerySdfResponse unary;
+    ASSERT_TRUE(g_stub->QuerySdf(&uctx, chunks[c], &unary).ok());
+    EXPECT_EQ(answers[c].sdf(), unary.sdf()) << "chunk " << c;
+    EXPECT_EQ(answers[c].gradient(), unary.gradient()) << "chunk " << c;
+    EXPECT_EQ(answers[c].observed(), unary.observed()) << "chunk " << c;
+  }
+  // A bad chunk ends the stream with its error.
+  grpc::ClientContext bctx;
+  auto bad_stream = g_stub->StreamQuerySdf(&bctx);
+  rim::v1::QuerySdfRequest bad = chunks[0];
+  bad.set_robot_id("nobody");
+  ASSERT_TRUE(bad_stream->Write(bad));
+  bad_stream->WritesDone();
+  while (bad_stream->Read(&a)) {
+  }
+  EXPECT_EQ(bad_stream->Finish().error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
 TEST_F(ServerE2eTest, MeshTilesDecode) {
   rim::v1::GetMeshTilesRequest request;
   request.set_robot_id(kRobot);
