@@ -144,6 +144,11 @@ grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::GetMeshTiles(
   return NewMeshTilesReactor(sessions_, *request);
 }
 
+grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::WatchMeshTiles(
+    grpc::CallbackServerContext* ctx, const rim::v1::WatchMeshTilesRequest* request) {
+  return NewWatchReactor(sessions_, *request);
+}
+
 grpc::ServerUnaryReactor* RimService::GetServerInfo(grpc::CallbackServerContext* ctx,
                                                     const rim::v1::GetServerInfoRequest* request,
                                                     rim::v1::ServerInfo* response) {

@@ -51,6 +51,8 @@ class RimService final : public rim::v1::Rim::CallbackService {
       grpc::CallbackServerContext* ctx) override;
   grpc::ServerWriteReactor<rim::v1::MeshTile>* GetMeshTiles(
       grpc::CallbackServerContext* ctx, const rim::v1::GetMeshTilesRequest* request) override;
+  grpc::ServerWriteReactor<rim::v1::MeshTile>* WatchMeshTiles(
+      grpc::CallbackServerContext* ctx, const rim::v1::WatchMeshTilesRequest* request) override;
   grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* ctx,
                                           const rim::v1::GetServerInfoRequest* request,
                                           rim::v1::ServerInfo* response) override;
@@ -72,6 +74,8 @@ absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& li
                          rim::v1::QuerySdfResponse* response);
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
     SessionManager* sessions, const ServiceLimits& limits);
+grpc::ServerWriteReactor<rim::v1::MeshTile>* NewWatchReactor(
+    SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewMeshTilesReactor(
     SessionManager* sessions, const rim::v1::GetMeshTilesRequest& request);
 

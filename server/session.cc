@@ -83,6 +83,14 @@ absl::Status Session::Checkpoint(const std::string& dir) {
   return wal_ ? wal_->TruncateBefore(uint64_t(frames)) : absl::OkStatus();
 }
 
+uint64_t Session::WaitForIntegrated(uint64_t seen, std::chrono::milliseconds timeout,
+                                    bool* closed) {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait_for(lock, timeout, [&] { return closing_ || stats_.integrated > seen; });
+  *closed = closing_;
+  return stats_.integrated;
+}
+
 void Session::Drain() {
   std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [this] { return queue_.empty() && !busy_; });

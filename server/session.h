@@ -3,6 +3,7 @@
 // Submit(); they never train. Knows nothing of gRPC: acks go out through callbacks.
 #pragma once
 
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -73,6 +74,9 @@ class Session {
   void OnSpace(std::function<void()> fn);
   // Saves a checkpoint of the map into `dir`, then drops log records the checkpoint covers.
   absl::Status Checkpoint(const std::string& dir);
+  // Waits until more than `seen` frames are integrated, the session closes, or the timeout passes;
+  // returns the integrated count and sets *closed when the session is closing.
+  uint64_t WaitForIntegrated(uint64_t seen, std::chrono::milliseconds timeout, bool* closed);
   // Waits until every queued scan is integrated.
   void Drain();
   // Stops accepting, drains, stops the trainer. Idempotent.

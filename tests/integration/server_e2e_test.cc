@@ -370,6 +370,62 @@ TEST_F(ServerE2eTest, MeshTilesDecode) {
 }
 
 // Last (gtest runs tests in definition order): SIGTERM stops the server cleanly.
+TEST_F(ServerE2eTest, WatchMeshTilesPushesTilesAsTrainingChangesThem) {
+  uint64_t since = 0;
+  {
+    grpc::ClientContext ctx;
+    rim::v1::GetSessionRequest get;
+    get.set_robot_id(kRobot);
+    rim::v1::SessionInfo info;
+    ASSERT_TRUE(g_stub->GetSession(&ctx, get, &info).ok());
+    since = info.map_version();
+  }
+  grpc::ClientContext watch_ctx;
+  watch_ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  rim::v1::WatchMeshTilesRequest watch;
+  watch.set_robot_id(kRobot);
+  watch.set_since_version(since);
+  auto reader = g_stub->WatchMeshTiles(&watch_ctx, watch);
+  // Nothing has changed since `since`: new tiles can only come from the scans streamed now.
+  std::thread streamer([&] {
+    const AnalyticScene scene = Scene();
+    LidarModel lidar;
+    lidar.beams = 16;
+    lidar.columns = 360;
+    lidar.max_range_m = 6.f;
+    lidar.elev_min_deg = -60.f;
+    const auto poses = Poses();
+    grpc::ClientContext ctx;
+    auto stream = g_stub->StreamScans(&ctx);
+    for (int i = 0; i < 2; ++i)
+      stream->Write(MakeScan(uint64_t(2000 + i), poses[i],
+                             testing_support::SimulateScan(scene, lidar, poses[i], 300 + i)));
+    stream->WritesDone();
+    rim::v1::ScanAck ack;
+    while (stream->Read(&ack)) {
+    }
+    stream->Finish();
+  });
+  rim::v1::MeshTile tile;
+  ASSERT_TRUE(reader->Read(&tile));
+  EXPECT_GT(tile.version(), since);
+  auto mesh = DecodeTileDraco(tile.draco());
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  EXPECT_EQ(mesh->faces.size(), tile.face_count());
+  streamer.join();
+  watch_ctx.TryCancel();
+  while (reader->Read(&tile)) {
+  }
+  EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  // Unknown session: NOT_FOUND.
+  grpc::ClientContext bad_ctx;
+  watch.set_robot_id("nobody");
+  auto bad = g_stub->WatchMeshTiles(&bad_ctx, watch);
+  while (bad->Read(&tile)) {
+  }
+  EXPECT_EQ(bad->Finish().error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
 TEST_F(ServerE2eTest, SigtermExitsZero) {
   ASSERT_GT(g_pid, 0);
   ASSERT_EQ(kill(g_pid, SIGTERM), 0);
