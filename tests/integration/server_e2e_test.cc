@@ -426,6 +426,84 @@ TEST_F(ServerE2eTest, WatchMeshTilesPushesTilesAsTrainingChangesThem) {
   EXPECT_EQ(bad->Finish().error_code(), grpc::StatusCode::NOT_FOUND);
 }
 
+TEST_F(ServerE2eTest, TwoRobotsStreamAtOnce) {
+  // Two sessions trained side by side, each by its own trainer, from two concurrent streams.
+  const std::vector<std::string> robots = {"robot_left", "robot_right"};
+  for (const std::string& robot : robots) {
+    rim::v1::CreateSessionRequest request;
+    request.set_robot_id(robot);
+    for (const auto& [k, v] :
+         std::vector<std::pair<std::string, std::string>>{{"grid.half_extent_x_m", "2"},
+                                                          {"grid.half_extent_y_m", "2"},
+                                                          {"grid.z_min_m", "-1.2"},
+                                                          {"grid.z_max_m", "1.2"},
+                                                          {"train.iterations", "10"},
+                                                          {"sampler.rays_per_iteration", "512"}}) {
+      auto* o = request.add_overrides();
+      o->set_key(k);
+      o->set_value(v);
+    }
+    grpc::ClientContext ctx;
+    rim::v1::SessionInfo info;
+    ASSERT_TRUE(g_stub->CreateSession(&ctx, request, &info).ok());
+  }
+  constexpr int kEach = 5;
+  std::vector<int> integrated(robots.size(), 0);
+  std::vector<std::thread> streams;
+  for (size_t r = 0; r < robots.size(); ++r) {
+    streams.emplace_back([&, r] {
+      const AnalyticScene scene = Scene();
+      LidarModel lidar;
+      lidar.beams = 16;
+      lidar.columns = 360;
+      lidar.max_range_m = 6.f;
+      lidar.elev_min_deg = -60.f;
+      const auto poses = Poses();
+      grpc::ClientContext ctx;
+      auto stream = g_stub->StreamScans(&ctx);
+      for (int i = 0; i < kEach; ++i) {
+        rim::v1::Scan scan = MakeScan(
+            uint64_t(i), poses[i], testing_support::SimulateScan(scene, lidar, poses[i], 50 + i));
+        scan.set_robot_id(robots[r]);
+        stream->Write(scan);
+      }
+      stream->WritesDone();
+      rim::v1::ScanAck ack;
+      while (stream->Read(&ack)) integrated[r] += ack.state() == rim::v1::ScanAck::INTEGRATED;
+      EXPECT_TRUE(stream->Finish().ok());
+    });
+  }
+  for (auto& t : streams) t.join();
+  for (size_t r = 0; r < robots.size(); ++r) {
+    EXPECT_EQ(integrated[r], kEach) << robots[r];
+    grpc::ClientContext ctx;
+    rim::v1::GetSessionRequest get;
+    get.set_robot_id(robots[r]);
+    rim::v1::SessionInfo info;
+    ASSERT_TRUE(g_stub->GetSession(&ctx, get, &info).ok());
+    EXPECT_EQ(info.integrated_frames(), uint64_t(kEach)) << robots[r];
+    // Each map answers for the box face the scans saw.
+    std::vector<Eigen::Vector3f> face;
+    for (float y = -0.4f; y <= 0.4f; y += 0.2f)
+      for (float z = 0.1f; z <= 0.9f; z += 0.2f) face.emplace_back(1.0f, y, z);
+    rim::v1::QuerySdfRequest q;
+    q.set_robot_id(robots[r]);
+    q.set_points_xyz(Pack(face));
+    rim::v1::QuerySdfResponse a;
+    grpc::ClientContext qctx;
+    ASSERT_TRUE(g_stub->QuerySdf(&qctx, q, &a).ok());
+    int close = 0, observed = 0;
+    for (size_t i = 0; i < face.size(); ++i) {
+      float sdf;
+      std::memcpy(&sdf, a.sdf().data() + 4 * i, 4);
+      observed += a.observed()[i] != 0;
+      close += a.observed()[i] != 0 && std::abs(sdf) < 0.05f;
+    }
+    EXPECT_GT(observed, int(face.size()) / 2) << robots[r];
+    EXPECT_GT(close, observed * 7 / 10) << robots[r];
+  }
+}
+
 TEST_F(ServerE2eTest, SigtermExitsZero) {
   ASSERT_GT(g_pid, 0);
   ASSERT_EQ(kill(g_pid, SIGTERM), 0);
