@@ -54,6 +54,38 @@ std::string Pack(const std::vector<Eigen::Vector3f>& points) {
   return out;
 }
 
+// A small-map session request (2 m box) with `iterations` training iterations per frame.
+rim::v1::CreateSessionRequest SmallSessionRequest(const std::string& robot, int iterations,
+                                                  int min_iterations = -1) {
+  rim::v1::CreateSessionRequest request;
+  request.set_robot_id(robot);
+  std::vector<std::pair<std::string, std::string>> overrides = {
+      {"grid.half_extent_x_m", "2"},
+      {"grid.half_extent_y_m", "2"},
+      {"grid.z_min_m", "-1.2"},
+      {"grid.z_max_m", "1.2"},
+      {"train.iterations", std::to_string(iterations)}};
+  if (min_iterations >= 0)
+    overrides.push_back({"train.min_iterations", std::to_string(min_iterations)});
+  overrides.push_back({"sampler.rays_per_iteration", "512"});
+  for (const auto& [k, v] : overrides) {
+    auto* o = request.add_overrides();
+    o->set_key(k);
+    o->set_value(v);
+  }
+  return request;
+}
+
+// A 16-beam LiDAR looking down to -60 degrees: the ground near the sensor, inside the 2 m map.
+LidarModel TestLidar() {
+  LidarModel lidar;
+  lidar.beams = 16;
+  lidar.columns = 360;
+  lidar.max_range_m = 6.f;
+  lidar.elev_min_deg = -60.f;
+  return lidar;
+}
+
 rim::v1::Scan MakeScan(uint64_t sequence, const Eigen::Isometry3f& pose,
                        const std::vector<Eigen::Vector3f>& points) {
   rim::v1::Scan scan;
@@ -145,19 +177,7 @@ TEST_F(ServerE2eTest, ServerInfo) {
 }
 
 TEST_F(ServerE2eTest, CreateSessionAndErrors) {
-  rim::v1::CreateSessionRequest request;
-  request.set_robot_id(kRobot);
-  for (const auto& [k, v] :
-       std::vector<std::pair<std::string, std::string>>{{"grid.half_extent_x_m", "2"},
-                                                        {"grid.half_extent_y_m", "2"},
-                                                        {"grid.z_min_m", "-1.2"},
-                                                        {"grid.z_max_m", "1.2"},
-                                                        {"train.iterations", "15"},
-                                                        {"sampler.rays_per_iteration", "512"}}) {
-    auto* o = request.add_overrides();
-    o->set_key(k);
-    o->set_value(v);
-  }
+  rim::v1::CreateSessionRequest request = SmallSessionRequest(kRobot, 15);
   {
     grpc::ClientContext ctx;
     rim::v1::SessionInfo info;
@@ -204,11 +224,7 @@ TEST_F(ServerE2eTest, CreateSessionAndErrors) {
 
 TEST_F(ServerE2eTest, StreamScansAcksAndRejects) {
   const AnalyticScene scene = Scene();
-  LidarModel lidar;
-  lidar.beams = 16;
-  lidar.columns = 360;
-  lidar.max_range_m = 6.f;
-  lidar.elev_min_deg = -60.f;  // the ground near the sensor, inside the 2 m local map
+  const LidarModel lidar = TestLidar();
   const auto poses = Poses();
   grpc::ClientContext ctx;
   auto stream = g_stub->StreamScans(&ctx);
@@ -389,11 +405,7 @@ TEST_F(ServerE2eTest, WatchMeshTilesPushesTilesAsTrainingChangesThem) {
   // Nothing has changed since `since`: new tiles can only come from the scans streamed now.
   std::thread streamer([&] {
     const AnalyticScene scene = Scene();
-    LidarModel lidar;
-    lidar.beams = 16;
-    lidar.columns = 360;
-    lidar.max_range_m = 6.f;
-    lidar.elev_min_deg = -60.f;
+    const LidarModel lidar = TestLidar();
     const auto poses = Poses();
     grpc::ClientContext ctx;
     auto stream = g_stub->StreamScans(&ctx);
@@ -430,19 +442,7 @@ TEST_F(ServerE2eTest, TwoRobotsStreamAtOnce) {
   // Two sessions trained side by side, each by its own trainer, from two concurrent streams.
   const std::vector<std::string> robots = {"robot_left", "robot_right"};
   for (const std::string& robot : robots) {
-    rim::v1::CreateSessionRequest request;
-    request.set_robot_id(robot);
-    for (const auto& [k, v] :
-         std::vector<std::pair<std::string, std::string>>{{"grid.half_extent_x_m", "2"},
-                                                          {"grid.half_extent_y_m", "2"},
-                                                          {"grid.z_min_m", "-1.2"},
-                                                          {"grid.z_max_m", "1.2"},
-                                                          {"train.iterations", "10"},
-                                                          {"sampler.rays_per_iteration", "512"}}) {
-      auto* o = request.add_overrides();
-      o->set_key(k);
-      o->set_value(v);
-    }
+    rim::v1::CreateSessionRequest request = SmallSessionRequest(robot, 10);
     grpc::ClientContext ctx;
     rim::v1::SessionInfo info;
     ASSERT_TRUE(g_stub->CreateSession(&ctx, request, &info).ok());
@@ -453,11 +453,7 @@ TEST_F(ServerE2eTest, TwoRobotsStreamAtOnce) {
   for (size_t r = 0; r < robots.size(); ++r) {
     streams.emplace_back([&, r] {
       const AnalyticScene scene = Scene();
-      LidarModel lidar;
-      lidar.beams = 16;
-      lidar.columns = 360;
-      lidar.max_range_m = 6.f;
-      lidar.elev_min_deg = -60.f;
+      const LidarModel lidar = TestLidar();
       const auto poses = Poses();
       grpc::ClientContext ctx;
       auto stream = g_stub->StreamScans(&ctx);
@@ -529,21 +525,8 @@ TEST(ServerCrashTest, KillNineLosesNoAcceptedScan) {
   ASSERT_FALSE(address.empty()) << log;
   auto stub = Connect(address);
   ASSERT_NE(stub, nullptr);
-  rim::v1::CreateSessionRequest create;
-  create.set_robot_id("crashbot");
   // Slow training, so that accepted scans are still queued when the server dies.
-  for (const auto& [k, v] :
-       std::vector<std::pair<std::string, std::string>>{{"grid.half_extent_x_m", "2"},
-                                                        {"grid.half_extent_y_m", "2"},
-                                                        {"grid.z_min_m", "-1.2"},
-                                                        {"grid.z_max_m", "1.2"},
-                                                        {"train.iterations", "120"},
-                                                        {"train.min_iterations", "120"},
-                                                        {"sampler.rays_per_iteration", "512"}}) {
-    auto* o = create.add_overrides();
-    o->set_key(k);
-    o->set_value(v);
-  }
+  rim::v1::CreateSessionRequest create = SmallSessionRequest("crashbot", 120, 120);
   {
     grpc::ClientContext ctx;
     rim::v1::SessionInfo info;
@@ -551,11 +534,7 @@ TEST(ServerCrashTest, KillNineLosesNoAcceptedScan) {
   }
   constexpr int kSent = 6;
   const AnalyticScene scene = Scene();
-  LidarModel lidar;
-  lidar.beams = 16;
-  lidar.columns = 360;
-  lidar.max_range_m = 6.f;
-  lidar.elev_min_deg = -60.f;
+  const LidarModel lidar = TestLidar();
   const auto poses = Poses();
   int accepted = 0, integrated = 0;
   {
