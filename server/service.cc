@@ -120,8 +120,10 @@ absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& li
   if (request.want_gradient())
     response->set_gradient(reinterpret_cast<const char*>(result.gradient.data()),
                            result.gradient.size() * 4);
-  response->set_observed(reinterpret_cast<const char*>(result.observed.data()),
-                         result.observed.size());
+  // The wire carries a plain 0/1 flag per point (rim.proto), whatever kind of observation it was.
+  std::string* observed = response->mutable_observed();
+  observed->resize(result.observed.size());
+  for (size_t i = 0; i < result.observed.size(); ++i) (*observed)[i] = result.observed[i] ? 1 : 0;
   response->set_map_version(result.map_version);
   response->set_server_seconds(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());

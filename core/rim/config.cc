@@ -47,6 +47,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("sampler.outside_rays", c.sampler.outside_rays);
   v("sampler.outside_rays_per_iteration", c.sampler.outside_rays_per_iteration);
   v("sampler.observed_band_m", c.sampler.observed_band_m);
+  v("sampler.free_space_rays", c.sampler.free_space_rays);
   v("sampler.seed", c.sampler.seed);
   v("buffer.max_points", c.buffer.max_points);
   v("buffer.max_points_per_frame", c.buffer.max_points_per_frame);
@@ -159,6 +160,8 @@ absl::Status MapperConfig::Validate() const {
     return Bad("sampler.free_min_ratio", "must satisfy 0 <= free_min_ratio < free_max_ratio <= 1");
   if (sampler.outside_rays_per_iteration < 0 || sampler.outside_rays_per_iteration > 1 << 20)
     return Bad("sampler.outside_rays_per_iteration", "must be in [0, 1048576]");
+  if (sampler.free_space_rays < 0 || sampler.free_space_rays > 1 << 20)
+    return Bad("sampler.free_space_rays", "must be in [0, 1048576]");
   if (!(sampler.observed_band_m > 0.f)) return Bad("sampler.observed_band_m", "must be > 0");
 
   if (buffer.max_points < 1) return Bad("buffer.max_points", "must be >= 1");

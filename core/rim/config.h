@@ -53,8 +53,12 @@ struct SamplerConfig {
   float free_max_ratio = 0.9f;
   bool outside_rays = false;  // sample free space of out-of-box rays up to the box exit
   int outside_rays_per_iteration = 512;
-  // A training sample with |label| below this marks its finest voxel as observed.
+  // A training sample with |label| below this marks its finest voxel as observed (and meshed);
+  // one with a larger positive label marks it as seen free (observed for queries only).
   float observed_band_m = 0.15f;
+  // Rays per frame walked voxel by voxel to mark the space in front of their endpoints as seen
+  // free (queries report it observed); 0 turns it off.
+  int free_space_rays = 2048;
   uint64_t seed = 7;
 };
 

@@ -104,7 +104,7 @@ const FeatureReader::Entry& FeatureReader::Fetch(int level, const Int3& g) {
     e.features.assign(map_.geometry().feature_dim(), 0.f);
     uint8_t observed = 0;
     if (!store_.Read(level, g, e.features.data(), &observed)) observed = 0;
-    e.observed = observed != 0;
+    e.observed = observed & LocalMap::kObservedBits;
   }
   return it->second;
 }
@@ -116,8 +116,8 @@ const float* FeatureReader::Get(int level, const Int3& g) {
   return Fetch(level, g).features.data();
 }
 
-bool FeatureReader::Observed(const Int3& g0) {
-  if (map_.InBox(0, g0)) return map_.level(0).flags[map_.Slot(0, g0)] & LocalMap::kObserved;
+uint8_t FeatureReader::ObservedBits(const Int3& g0) {
+  if (map_.InBox(0, g0)) return map_.level(0).flags[map_.Slot(0, g0)] & LocalMap::kObservedBits;
   return Fetch(0, g0).observed;
 }
 

@@ -51,8 +51,10 @@ class FeatureReader {
   FeatureReader(const LocalMap& map, const SubmapStore& store);
   // Features of lattice point g at a level (D floats, valid until the next call to Get).
   const float* Get(int level, const Int3& g);
-  // Whether the finest voxel with minimum corner g was observed.
-  bool Observed(const Int3& g0);
+  // Whether the finest voxel with minimum corner g was observed, near a surface or as free space.
+  bool Observed(const Int3& g0) { return ObservedBits(g0) != 0; }
+  // The LocalMap::kObservedBits of that voxel (meshing wants kObserved only).
+  uint8_t ObservedBits(const Int3& g0);
 
   // Encodes one point; with `jacobian` (L·D × 3, row-major) also d features / d position.
   void Encode(const Vec3d& p_W, float* features, float* jacobian);
@@ -60,7 +62,7 @@ class FeatureReader {
  private:
   struct Entry {
     std::vector<float> features;
-    bool observed = false;
+    uint8_t observed = 0;  // LocalMap::kObservedBits
   };
   const Entry& Fetch(int level, const Int3& g);
 

@@ -50,7 +50,7 @@ void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadF
         batch.points.push_back(g);
         batch.features.insert(batch.features.end(), &lv.features[slot * D],
                               &lv.features[slot * D] + D);
-        if (l == 0) batch.observed.push_back(lv.flags[slot] & kObserved);
+        if (l == 0) batch.observed.push_back(lv.flags[slot] & kObservedBits);
         ResetSlot(l, slot);
       });
       if (!batch.points.empty() && save) save(std::move(batch));
@@ -60,7 +60,7 @@ void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadF
       const int64_t slot = Slot(l, g);
       uint8_t observed = 0;
       if (load && load(l, g, &lv.features[slot * D], &observed)) {
-        lv.flags[slot] = kHasData | (observed ? kObserved : 0);
+        lv.flags[slot] = kHasData | (observed & kObservedBits);
       }
     };
     if (placed_) {

@@ -16,12 +16,15 @@ struct SlabBatch {
   int level = 0;
   std::vector<Int3> points;       // world lattice indices
   std::vector<float> features;    // D per point
-  std::vector<uint8_t> observed;  // per point (level 0 only; empty otherwise)
+  std::vector<uint8_t> observed;  // per point, kObserved | kSeenFree bits (level 0 only)
 };
 
 class LocalMap {
  public:
-  enum Flags : uint8_t { kObserved = 1, kHasData = 2 };
+  // kObserved: a training sample near the surface fell in the voxel (what meshing visits).
+  // kSeenFree: a free-space sample fell in it; queries there report observed, meshing skips it.
+  enum Flags : uint8_t { kObserved = 1, kHasData = 2, kSeenFree = 4 };
+  static constexpr uint8_t kObservedBits = kObserved | kSeenFree;
 
   struct Level {
     Int3 dims = Int3::Zero();     // lattice points per axis (storage size)

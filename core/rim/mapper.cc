@@ -7,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "rim/decoder.h"
 #include "rim/encoder.h"
+#include "rim/free_space.h"
 #include "rim/local_map.h"
 #include "rim/mesher.h"
 #include "rim/outlier_filter.h"
@@ -107,6 +108,11 @@ void Mapper::Preprocess(const PosedScan& scan) {
       outside.origins_W.push_back(o_W);
     }
   }
+  MarkFreeSpace(inside_p, inside_o, config_.sampler.observed_band_m,
+                config_.sampler.free_space_rays, local_map_.get());
+  // Rays ending outside the box crossed it as free space up to the box face.
+  MarkFreeSpace(outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
+                config_.sampler.free_space_rays / 4, local_map_.get());
   buffer_->AddFrame(inside_p, inside_o);
   buffer_->RemoveOutside(lo, hi);
   // Outlier removal needs a decoder that already means something: not before it is frozen.
@@ -194,7 +200,9 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
     reader.Encode(p, &features[i * F], want_gradient ? &jac[i * F * 3] : nullptr);
     const Int3 g0(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
                   int(std::floor(p.z() * inv_s)));
-    out->observed[i] = reader.Observed(g0) ? 1 : 0;
+    const uint8_t bits = reader.ObservedBits(g0);
+    out->observed[i] = ((bits & LocalMap::kObserved) ? QueryResult::kObservedSurface : 0) |
+                       ((bits & LocalMap::kSeenFree) ? QueryResult::kObservedFree : 0);
   }
   decoder_->Forward(features.data(), int(n), out->sdf.data(),
                     want_gradient ? dsdf.data() : nullptr);

@@ -53,8 +53,12 @@ struct StageTimings {
 struct QueryResult {
   std::vector<float> sdf;         // metres; see `observed`
   std::vector<float> gradient;    // 3 per point, when asked
-  std::vector<uint8_t> observed;  // 0: the finest voxel at the point was never observed, and its
-                                  // sdf is the network's extrapolation, not a measurement
+  // Per point, how the finest voxel at the point was observed: 0 never (the sdf is the network's
+  // extrapolation), else kObservedSurface (training samples near a surface fell in it, what the
+  // mesh covers) and/or kObservedFree (a ray crossed it in front of its endpoint). The service
+  // reports observed = (value != 0).
+  std::vector<uint8_t> observed;
+  static constexpr uint8_t kObservedSurface = 1, kObservedFree = 2;
   uint64_t map_version = 0;
 };
 

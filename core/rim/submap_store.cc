@@ -131,7 +131,7 @@ std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
     for (int x = 0; x < B; ++x)
       for (int y = 0; y < B; ++y)
         for (int z = 0; z < B; ++z) {
-          if (block.observed[(size_t(x) * B + y) * B + z])
+          if (block.observed[(size_t(x) * B + y) * B + z] & LocalMap::kObserved)
             out.push_back(base + block_key * B + Int3(x, y, z));
         }
   }

@@ -115,11 +115,21 @@ void Trainer::MarkObserved() {
   const double inv_s = 1.0 / map_->geometry().leaf_m();
   const float band = config_.sampler.observed_band_m;
   for (size_t i = 0; i < batch_.size(); ++i) {
-    if (std::abs(batch_.labels[i]) >= band) continue;
+    // Near the surface: observed and meshed. Well in front of it: seen free, so a query there
+    // reports a measured (positive) distance. Far behind a surface nothing was seen.
+    const float label = batch_.labels[i];
+    uint8_t bits;
+    if (std::abs(label) < band) {
+      bits = LocalMap::kObserved;
+    } else if (label > 0) {
+      bits = LocalMap::kSeenFree;
+    } else {
+      continue;
+    }
     const Int3 g(int(std::floor(batch_.xyz[3 * i] * inv_s)),
                  int(std::floor(batch_.xyz[3 * i + 1] * inv_s)),
                  int(std::floor(batch_.xyz[3 * i + 2] * inv_s)));
-    lv.flags[map_->Slot(0, g)] |= LocalMap::kObserved | LocalMap::kHasData;
+    lv.flags[map_->Slot(0, g)] |= bits | LocalMap::kHasData;
   }
 }
 

@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <map>
 #include <random>
 #include <set>
 
@@ -122,10 +121,34 @@ TEST_F(MapperSceneTest, SignIsRightInFreeSpace) {
   QueryResult q;
   const size_t n = xyz.size() / 3;
   ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), n, false, &q).ok());
-  size_t positive = 0;
+  size_t positive = 0, below = 0, observed = 0;
   for (float v : q.sdf) positive += v > 0.f;
-  std::printf("free space: %zu of %zu positive\n", positive, n);
+  // Below the sensor (1.6 m) every frame's downward beams crossed the corridor on their way to the
+  // ground: seen free. Above it only beams that hit a building did, so only some of it is.
+  for (size_t i = 0; i < n; ++i) {
+    if (xyz[3 * i + 2] >= 1.6f) continue;
+    ++below;
+    observed += q.observed[i] != 0;
+  }
+  std::printf("free space: %zu of %zu positive; below the sensor %zu of %zu observed\n", positive,
+              n, observed, below);
   EXPECT_GT(double(positive) / n, 0.98);
+  EXPECT_GT(double(observed) / below, 0.98);
+}
+
+TEST_F(MapperSceneTest, UnseenSpaceIsNotObserved) {
+  // Deep under the ground (behind every surface) and far to the side of the drive, beyond the
+  // sensor's reach: no ray saw these, whatever the network extrapolates there.
+  std::vector<float> xyz;
+  for (float x = 3; x < 28; x += 1.f) {
+    xyz.insert(xyz.end(), {x, 0.f, -2.5f});
+    xyz.insert(xyz.end(), {x, 150.f, 1.f});
+  }
+  QueryResult q;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
+  for (size_t i = 0; i < q.observed.size(); ++i)
+    EXPECT_EQ(q.observed[i], 0) << "point " << xyz[3 * i] << "," << xyz[3 * i + 1] << ","
+                                << xyz[3 * i + 2];
 }
 
 TEST_F(MapperSceneTest, MeshIsAccurateAndTilesAreSeamless) {

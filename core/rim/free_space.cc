@@ -1,0 +1,79 @@
+#include "rim/free_space.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace rim {
+namespace {
+
+// Clips the segment o + t·d, t in [*t0, *t1], to the box [lo, hi); false when nothing is left.
+bool ClipToBox(const Vec3d& o, const Vec3d& d, const Vec3d& lo, const Vec3d& hi, double* t0,
+               double* t1) {
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(d[a]) < 1e-12) {
+      if (o[a] < lo[a] || o[a] >= hi[a]) return false;
+      continue;
+    }
+    double ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+    if (ta > tb) std::swap(ta, tb);
+    *t0 = std::max(*t0, ta);
+    *t1 = std::min(*t1, tb);
+  }
+  return *t0 < *t1;
+}
+
+}  // namespace
+
+void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
+                   float band_m, int max_rays, LocalMap* map) {
+  if (max_rays <= 0 || points_W.empty() || !map->placed()) return;
+  const double s = map->geometry().leaf_m();
+  const Vec3d lo = map->min_m(), hi = map->max_m();
+  LocalMap::Level& lv = map->level(0);
+  const size_t n = points_W.size();
+  const double stride = std::max(1.0, double(n) / max_rays);
+  for (double k = 0; k < double(n); k += stride) {
+    const size_t i = size_t(k);
+    const Vec3d o = origins_W[i].cast<double>();
+    Vec3d d = points_W[i].cast<double>() - o;
+    const double range = d.norm();
+    if (range <= band_m) continue;
+    d /= range;
+    double t0 = 0, t1 = range - band_m;
+    if (!ClipToBox(o, d, lo, hi, &t0, &t1)) continue;
+    // Voxel walk (one step per voxel boundary crossed) from t0 to t1.
+    const Vec3d p = o + t0 * d;
+    Int3 g(int(std::floor(p.x() / s)), int(std::floor(p.y() / s)), int(std::floor(p.z() / s)));
+    Int3 step;
+    Vec3d t_max, t_delta;
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] > 0) {
+        step[a] = 1;
+        t_max[a] = t0 + ((g[a] + 1) * s - p[a]) / d[a];
+        t_delta[a] = s / d[a];
+      } else if (d[a] < 0) {
+        step[a] = -1;
+        t_max[a] = t0 + (g[a] * s - p[a]) / d[a];
+        t_delta[a] = -s / d[a];
+      } else {
+        step[a] = 0;
+        t_max[a] = std::numeric_limits<double>::infinity();
+        t_delta[a] = std::numeric_limits<double>::infinity();
+      }
+    }
+    double t = t0;
+    while (t < t1) {
+      // Rounding at the box faces can put the first or last voxel just outside.
+      if (map->InBox(0, g)) lv.flags[map->Slot(0, g)] |= LocalMap::kSeenFree | LocalMap::kHasData;
+      int a = 0;
+      if (t_max[1] < t_max[a]) a = 1;
+      if (t_max[2] < t_max[a]) a = 2;
+      t = t_max[a];
+      t_max[a] += t_delta[a];
+      g[a] += step[a];
+    }
+  }
+}
+
+}  // namespace rim

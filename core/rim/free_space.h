@@ -1,0 +1,22 @@
+// Free-space bookkeeping for queries (§3.5 "observed"): the finest voxels a measured ray crossed
+// in front of its endpoint were seen free. Training samples only land in part of that space (free
+// samples start at free_min_ratio of the range), so a planner asking about the space right in
+// front of the robot would otherwise hear "never observed" about space the sensor just looked
+// through.
+#pragma once
+
+#include <vector>
+
+#include "rim/local_map.h"
+#include "rim/types.h"
+
+namespace rim {
+
+// Marks kSeenFree on the finest voxels of the local map crossed by rays origin -> point, stopping
+// `band_m` short of the endpoint (the surface band, which training marks kObserved). Uses at most
+// `max_rays` rays, evenly strided through the scan, so the cost per frame is bounded whatever the
+// scan size; 0 marks nothing. Only the part of each ray inside the box is walked.
+void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
+                   float band_m, int max_rays, LocalMap* map);
+
+}  // namespace rim
