@@ -1,6 +1,7 @@
 // rim_server: the gRPC mapping service (DESIGN.md §5). Serves rim.v1.Rim, standard health checking
-// and reflection; on SIGTERM or SIGINT goes NOT_SERVING, stops accepting, finishes in-flight RPCs
-// within 10 s, then drains and saves every session and exits 0.
+// and reflection, and Prometheus metrics on --metrics. Health says SERVING once warmed up; on
+// SIGTERM or SIGINT it goes NOT_SERVING, stops accepting, finishes in-flight RPCs within
+// --shutdown-deadline, then drains and saves every session and exits 0.
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
@@ -14,9 +15,11 @@
 #include <thread>
 
 #include "rim/version.h"
+#include "server/metrics.h"
 #include "server/server_config.h"
 #include "server/service.h"
 #include "server/session_manager.h"
+#include "server/warmup.h"
 
 namespace {
 
@@ -34,8 +37,6 @@ int Run(int argc, char** argv) {
   }
   std::cerr << "rim_server " << rim::kRimVersion << " effective config:\n"
             << config->ToString() << std::flush;
-  if (!config->metrics.empty())
-    std::cerr << "rim_server: --metrics is accepted but not served yet\n";
 
   // Block the shutdown signals in every thread (gRPC's included); one thread waits for them.
   sigset_t signals;
@@ -44,13 +45,28 @@ int Run(int argc, char** argv) {
   sigaddset(&signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
+  rim::server::ServerMetrics metrics(config->host_memory_budget_bytes);
   rim::server::SessionManagerOptions manager_options;
+  manager_options.host_memory_budget_bytes = config->host_memory_budget_bytes;
+  manager_options.events = &metrics;
   manager_options.data_dir = config->data_dir;
   manager_options.default_preset = config->default_preset;
   manager_options.max_sessions = config->max_sessions;
   manager_options.queue_length = config->queue_length;
   manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
   rim::server::SessionManager sessions(manager_options);
+  metrics.WatchSessions(&sessions);
+  if (!config->metrics.empty()) {
+    auto metrics_port = metrics.Serve(config->metrics);
+    if (!metrics_port.ok()) {
+      std::cerr << "rim_server: " << metrics_port.status().message() << "\n";
+      return 1;
+    }
+    const std::string metrics_host = config->metrics.substr(0, config->metrics.rfind(':'));
+    std::printf("rim_server metrics on http://%s:%d/metrics\n", metrics_host.c_str(),
+                *metrics_port);
+    std::fflush(stdout);
+  }
 
   rim::server::ServiceLimits limits;
   limits.max_points_per_scan = config->max_points_per_scan;
@@ -66,6 +82,7 @@ int Run(int argc, char** argv) {
   int port = 0;
   builder.AddListeningPort(config->listen, grpc::InsecureServerCredentials(), &port);
   builder.RegisterService(&service);
+  builder.experimental().SetInterceptorCreators(metrics.InterceptorFactories());
   // Scans and query batches are large; the size limits are enforced by the handlers.
   builder.SetMaxReceiveMessageSize(256 << 20);
   builder.SetMaxSendMessageSize(256 << 20);
@@ -75,17 +92,27 @@ int Run(int argc, char** argv) {
     return 1;
   }
   const std::string host = config->listen.substr(0, config->listen.rfind(':'));
-  server->GetHealthCheckService()->SetServingStatus(true);
+  // Not serving until warmed up: load balancers and probes wait, clients may already connect.
+  server->GetHealthCheckService()->SetServingStatus(false);
   // Tests and scripts wait for this line (the port is resolved when --listen asks for port 0).
   std::printf("rim_server listening on %s:%d\n", host.c_str(), port);
   std::fflush(stdout);
+  const auto warm = rim::server::WarmUp(config->warmup_frames);
+  if (!warm.ok()) {
+    std::cerr << "rim_server: warm-up failed: " << warm.status().message() << "\n";
+    server->Shutdown();
+    return 1;
+  }
+  std::cerr << "rim_server: warmed up in " << *warm << " s; serving\n";
+  server->GetHealthCheckService()->SetServingStatus(true);
 
   std::thread signal_thread([&] {
     int signal = 0;
     sigwait(&signals, &signal);
     std::cerr << "rim_server: signal " << signal << ", shutting down\n";
     server->GetHealthCheckService()->SetServingStatus(false);
-    server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(10));
+    server->Shutdown(std::chrono::system_clock::now() +
+                     std::chrono::seconds(config->shutdown_deadline_s));
   });
   server->Wait();
   signal_thread.join();

@@ -44,6 +44,10 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 1, &c->max_query_points);
   } else if (name == "max-points-per-scan") {
     return ParseInt(name, value, 1, &c->max_points_per_scan);
+  } else if (name == "warmup-frames") {
+    return ParseInt(name, value, 0, &c->warmup_frames);
+  } else if (name == "shutdown-deadline") {
+    return ParseInt(name, value, 0, &c->shutdown_deadline_s);
   } else if (name == "host-memory-budget-bytes") {
     if (!absl::SimpleAtoi(value, &c->host_memory_budget_bytes))
       return absl::InvalidArgumentError(absl::StrCat("--", name, ": bad value '", value, "'"));
@@ -83,7 +87,10 @@ std::string ServerUsage() {
   return "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE]\n"
          "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
          "                  [--max-query-points N] [--max-points-per-scan N]\n"
-         "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n";
+         "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n"
+         "                  [--host-memory-budget-bytes N (default 0 = none)]\n"
+         "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
+         "                  [--shutdown-deadline SECONDS (default 10)]\n";
 }
 
 std::string ServerConfig::ToString() const {
@@ -98,7 +105,9 @@ std::string ServerConfig::ToString() const {
     << "checkpoint_every_frames = " << checkpoint_every_frames << "\n"
     << "max_query_points = " << max_query_points << "\n"
     << "max_points_per_scan = " << max_points_per_scan << "\n"
-    << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n";
+    << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n"
+    << "warmup_frames = " << warmup_frames << "\n"
+    << "shutdown_deadline = " << shutdown_deadline_s << "\n";
   return s.str();
 }
 

@@ -13,7 +13,7 @@ namespace rim::server {
 struct ServerConfig {
   std::string listen = "127.0.0.1:50051";
   std::string data_dir;
-  std::string metrics;      // accepted, not served yet
+  std::string metrics;      // host:port of the Prometheus /metrics endpoint; empty: none
   std::string config_file;  // --config
   std::string default_preset = "maicity";
   int max_sessions = 16;
@@ -22,6 +22,11 @@ struct ServerConfig {
   int max_query_points = 1 << 20;
   int max_points_per_scan = 1 << 21;
   uint64_t host_memory_budget_bytes = 0;  // 0: no budget enforced
+  // Frames of a built-in scene trained at start, before health reports SERVING, so that the first
+  // robot does not pay for loading kernels and growing allocators. 0: none.
+  int warmup_frames = 2;
+  // SIGTERM: in-flight RPCs get this long to finish before they are cancelled.
+  int shutdown_deadline_s = 10;
 
   // Every field as `key = value` lines.
   std::string ToString() const;

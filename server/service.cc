@@ -125,8 +125,10 @@ absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& li
   observed->resize(result.observed.size());
   for (size_t i = 0; i < result.observed.size(); ++i) (*observed)[i] = result.observed[i] ? 1 : 0;
   response->set_map_version(result.map_version);
-  response->set_server_seconds(
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  response->set_server_seconds(seconds);
+  (*session)->RecordQuery(n, seconds);
   return absl::OkStatus();
 }
 

@@ -97,7 +97,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     }
     --awaiting_integration_;
     if (s.code() == absl::StatusCode::kResourceExhausted) return p.session;
-    p.session->CountRejected();
+    p.session->CountRejected(s.code());
     RejectLocked(p.sequence, s);
     pending_.reset();
     ReadNextLocked();
@@ -122,9 +122,12 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
       ReadNextLocked();
       return;
     }
-    auto scan = ConvertScan(in_, size_t(limits_.max_points_per_scan));
+    // Over the memory budget, ingest refuses new scans rather than growing (§5.2 limits).
+    const absl::Status budget = sessions_->CheckHostMemoryBudget();
+    absl::StatusOr<PosedScan> scan =
+        budget.ok() ? ConvertScan(in_, size_t(limits_.max_points_per_scan)) : budget;
     if (!scan.ok()) {
-      (*session)->CountRejected();
+      (*session)->CountRejected(scan.status().code());
       std::lock_guard<std::mutex> lock(shared_->mu);
       RejectLocked(sequence, scan.status());
       ReadNextLocked();

@@ -1,11 +1,35 @@
 #include "server/session.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <filesystem>
 
 #include "absl/strings/str_cat.h"
 
 namespace rim::server {
+namespace {
+
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Bytes of the files under a checkpoint directory, the write-ahead log excluded.
+uint64_t CheckpointBytes(const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  uint64_t total = 0;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    if (it->is_directory(ec) && it->path().filename() == "wal") {
+      it.disable_recursion_pending();
+      continue;
+    }
+    if (it->is_regular_file(ec)) total += it->file_size(ec);
+  }
+  return total;
+}
+
+}  // namespace
 
 absl::StatusOr<std::unique_ptr<Session>> Session::Create(const std::string& robot_id,
                                                          const MapperConfig& config,
@@ -25,7 +49,13 @@ std::unique_ptr<Session> Session::Adopt(const std::string& robot_id, std::unique
 
 Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
                  const SessionOptions& options, std::unique_ptr<WriteAheadLog> wal)
-    : robot_id_(robot_id), mapper_(std::move(mapper)), options_(options), wal_(std::move(wal)) {
+    : robot_id_(robot_id),
+      mapper_(std::move(mapper)),
+      options_(options),
+      wal_(std::move(wal)),
+      tiles_([events = options.events, robot_id](size_t bytes, double seconds) {
+        if (events) events->TileEncoded(robot_id, bytes, seconds);
+      }) {
   next_index_ = uint64_t(mapper_->frames());
   if (wal_) next_index_ = std::max(next_index_, wal_->next_index());
   stats_.integrated = uint64_t(mapper_->frames());
@@ -54,12 +84,16 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
         "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
   if (wal_) {
     // Durable before it counts as accepted: a crash after this point loses nothing (§5.3).
+    const auto start = std::chrono::steady_clock::now();
     absl::Status logged = wal_->Append(next_index_, sequence, scan);
     if (!logged.ok()) return logged;
+    stats_.wal_bytes = wal_->bytes();
+    if (options_.events) options_.events->WalAppended(robot_id_, SecondsSince(start));
   }
   ++next_index_;
   queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
   ++stats_.accepted;
+  if (options_.events) options_.events->ScanAccepted(robot_id_);
   stats_.queue_depth = queue_.size();
   cv_.notify_all();
   return absl::OkStatus();
@@ -76,11 +110,17 @@ void Session::OnSpace(std::function<void()> fn) {
 }
 
 absl::Status Session::Checkpoint(const std::string& dir) {
+  const auto start = std::chrono::steady_clock::now();
   int64_t frames = 0;
   absl::Status saved = mapper_->Save(dir, &frames);
   if (!saved.ok()) return saved;
+  const uint64_t bytes = CheckpointBytes(dir);
   std::lock_guard<std::mutex> lock(mu_);
-  return wal_ ? wal_->TruncateBefore(uint64_t(frames)) : absl::OkStatus();
+  absl::Status truncated = wal_ ? wal_->TruncateBefore(uint64_t(frames)) : absl::OkStatus();
+  stats_.last_checkpoint_bytes = bytes;
+  if (wal_) stats_.wal_bytes = wal_->bytes();
+  if (options_.events) options_.events->CheckpointWritten(robot_id_, SecondsSince(start), bytes);
+  return truncated;
 }
 
 uint64_t Session::WaitForIntegrated(uint64_t seen, std::chrono::milliseconds timeout,
@@ -116,9 +156,16 @@ absl::Status Session::last_checkpoint_status() const {
   return last_checkpoint_;
 }
 
-void Session::CountRejected() {
-  std::lock_guard<std::mutex> lock(mu_);
-  ++stats_.rejected;
+void Session::CountRejected(absl::StatusCode code) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.rejected;
+  }
+  if (options_.events) options_.events->ScanRejected(robot_id_, code);
+}
+
+void Session::RecordQuery(size_t points, double seconds) {
+  if (options_.events) options_.events->QueryAnswered(robot_id_, points, seconds);
 }
 
 void Session::Run() {
@@ -140,6 +187,13 @@ void Session::Run() {
     StageTimings timing;
     const absl::Status status = mapper_->IntegrateScan(item.scan, iterations, &timing);
 
+    if (options_.events) {
+      if (status.ok()) {
+        options_.events->FrameIntegrated(robot_id_, timing);
+      } else {
+        options_.events->FrameFailed(robot_id_);
+      }
+    }
     lock.lock();
     if (!status.ok()) ++stats_.failed;
     if (status.ok()) {

@@ -18,6 +18,7 @@
 #include "rim/config.h"
 #include "rim/mapper.h"
 #include "rim/scan.h"
+#include "server/session_events.h"
 #include "server/tile_cache.h"
 #include "server/wal.h"
 
@@ -31,6 +32,8 @@ struct SessionOptions {
   // truncates the write-ahead log, so that the log (and replay after a crash) stays short.
   int checkpoint_every_frames = 0;  // 0: never on its own
   std::string checkpoint_dir;
+  // Receives what the session does, for metrics; not owned, outlives the session; may be null.
+  SessionEvents* events = nullptr;
 };
 
 struct IntegratedAck {
@@ -45,6 +48,8 @@ struct IntegratedAck {
 struct SessionStats {
   uint64_t accepted = 0, integrated = 0, rejected = 0;
   uint64_t failed = 0;  // accepted, but training it returned an error
+  uint64_t last_checkpoint_bytes = 0;
+  int64_t wal_bytes = 0;
   size_t queue_depth = 0;
   int iterations_per_frame = 0;
   float last_loss = 0;
@@ -93,7 +98,10 @@ class Session {
   SessionStats Stats() const;
   // The outcome of the last periodic checkpoint (OK if none failed).
   absl::Status last_checkpoint_status() const;
-  void CountRejected();
+  // Counts a scan of this session refused by a handler (bad input, full queue, closing).
+  void CountRejected(absl::StatusCode code);
+  // Reports an answered query batch to the metrics.
+  void RecordQuery(size_t points, double seconds);
 
  private:
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,

@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "rim/binary_io.h"
 #include "rim/config.h"
 #include "rim/mapper.h"
@@ -25,7 +26,56 @@ absl::Status ValidateRobotId(const std::string& robot_id) {
   return absl::OkStatus();
 }
 
+uint64_t SessionHostBytes(const Session& session) {
+  const MapperStats stats = session.mapper().Stats();
+  // Each buffered point keeps its endpoint and its ray origin.
+  return uint64_t(stats.local_map_bytes + stats.submap_bytes) +
+         uint64_t(stats.buffer_points) * 2 * sizeof(Vec3f);
+}
+
+namespace {
+
+std::string Megabytes(uint64_t bytes) { return absl::StrFormat("%.1f MB", bytes / 1e6); }
+
+}  // namespace
+
 SessionManager::SessionManager(SessionManagerOptions options) : options_(std::move(options)) {}
+
+uint64_t SessionManager::HostMemoryBytes() const {
+  uint64_t total = 0;
+  for (const auto& session : List()) total += SessionHostBytes(*session);
+  return total;
+}
+
+absl::Status SessionManager::CheckHostMemoryBudget() const {
+  const uint64_t budget = options_.host_memory_budget_bytes;
+  if (budget == 0) return absl::OkStatus();
+  const uint64_t used = HostMemoryBytes();
+  if (used <= budget) return absl::OkStatus();
+  return absl::ResourceExhaustedError(
+      absl::StrCat("host memory budget exceeded: sessions hold ", Megabytes(used), " of ",
+                   Megabytes(budget), " (--host-memory-budget-bytes); save and close sessions"));
+}
+
+absl::Status SessionManager::AdmitUnderBudget(const Session& session) const {
+  const uint64_t budget = options_.host_memory_budget_bytes;
+  if (budget == 0) return absl::OkStatus();
+  const uint64_t used = HostMemoryBytes(), need = SessionHostBytes(session);
+  if (used + need <= budget) return absl::OkStatus();
+  return absl::ResourceExhaustedError(
+      absl::StrCat("host memory budget: session ", session.robot_id(), " needs ", Megabytes(need),
+                   ", open sessions hold ", Megabytes(used), " of ", Megabytes(budget),
+                   " (--host-memory-budget-bytes)"));
+}
+
+SessionOptions SessionManager::MakeSessionOptions(const std::string& robot_id) const {
+  SessionOptions o;
+  o.queue_length = options_.queue_length;
+  o.checkpoint_every_frames = options_.checkpoint_every_frames;
+  o.checkpoint_dir = AbsoluteDir(robot_id);
+  o.events = options_.events;
+  return o;
+}
 
 SessionManager::~SessionManager() { CloseAll(/*save=*/false).IgnoreError(); }
 
@@ -60,14 +110,17 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
           "session limit reached: ", options_.max_sessions, " sessions (--max-sessions)"));
     pending_[robot_id] = true;
   }
-  SessionOptions session_options;
-  session_options.queue_length = options_.queue_length;
-  session_options.checkpoint_every_frames = options_.checkpoint_every_frames;
-  session_options.checkpoint_dir = AbsoluteDir(robot_id);
-  auto session = CreateOnDisk(robot_id, *config, session_options);
+  auto session = CreateOnDisk(robot_id, *config, MakeSessionOptions(robot_id));
+  absl::Status admitted = session.ok() ? AdmitUnderBudget(**session) : session.status();
+  if (session.ok() && !admitted.ok()) {
+    // Refused: nothing of it stays, on disk or in memory.
+    session->reset();
+    std::error_code ec;
+    std::filesystem::remove_all(AbsoluteDir(robot_id), ec);
+  }
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
-  if (!session.ok()) return session.status();
+  if (!admitted.ok()) return admitted;
   std::shared_ptr<Session> shared(std::move(*session));
   sessions_[robot_id] = shared;
   return shared;
@@ -150,15 +203,17 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
     pending_[robot_id] = true;
   }
   auto restored = Restore(dir);
+  std::shared_ptr<Session> shared;
+  absl::Status admitted = restored.status();
+  if (restored.ok()) {
+    shared = Session::Adopt(robot_id, std::move(restored->first), MakeSessionOptions(robot_id),
+                            std::move(restored->second));
+    admitted = AdmitUnderBudget(*shared);
+    if (!admitted.ok()) shared.reset();  // the saved session stays on disk, untouched
+  }
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
-  if (!restored.ok()) return restored.status();
-  SessionOptions session_options;
-  session_options.queue_length = options_.queue_length;
-  session_options.checkpoint_every_frames = options_.checkpoint_every_frames;
-  session_options.checkpoint_dir = AbsoluteDir(robot_id);
-  std::shared_ptr<Session> shared = Session::Adopt(robot_id, std::move(restored->first),
-                                                   session_options, std::move(restored->second));
+  if (!admitted.ok()) return admitted;
   sessions_[robot_id] = shared;
   return shared;
 }

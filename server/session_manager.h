@@ -23,7 +23,15 @@ struct SessionManagerOptions {
   int max_sessions = 16;
   int queue_length = 8;
   int checkpoint_every_frames = 100;
+  // Host memory all sessions together may hold (maps, optimiser state, point buffers); 0: none.
+  uint64_t host_memory_budget_bytes = 0;
+  // Receives what sessions do, for metrics; not owned; may be null.
+  SessionEvents* events = nullptr;
 };
+
+// Host memory a session's map holds: live grids with optimiser state, sub-maps in memory, and the
+// historical point buffer.
+uint64_t SessionHostBytes(const Session& session);
 
 // OK for 1-64 characters of [A-Za-z0-9_.-]; otherwise INVALID_ARGUMENT naming robot_id.
 absl::Status ValidateRobotId(const std::string& robot_id);
@@ -52,12 +60,20 @@ class SessionManager {
   // Closes every session (for shutdown), saving each when `save` is set; returns the first error.
   absl::Status CloseAll(bool save);
 
+  // Sum of SessionHostBytes over the open sessions.
+  uint64_t HostMemoryBytes() const;
+  // RESOURCE_EXHAUSTED naming the budget when the sessions hold more than it (OK without one).
+  absl::Status CheckHostMemoryBudget() const;
+
   const SessionManagerOptions& options() const { return options_; }
 
  private:
   std::string RelativeDir(const std::string& robot_id) const;
   std::string AbsoluteDir(const std::string& robot_id) const;
   absl::Status SaveLocked(Session& session);
+  SessionOptions MakeSessionOptions(const std::string& robot_id) const;
+  // After a session was built: RESOURCE_EXHAUSTED if adding it breaks the budget.
+  absl::Status AdmitUnderBudget(const Session& session) const;
   // A new session folder: config, empty write-ahead log.
   absl::StatusOr<std::unique_ptr<Session>> CreateOnDisk(const std::string& robot_id,
                                                         const MapperConfig& config,

@@ -1,6 +1,7 @@
 #include "server/tile_cache.h"
 
 #include <array>
+#include <chrono>
 
 #include "absl/strings/str_cat.h"
 #include "server/mesh_codec.h"
@@ -19,6 +20,7 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
     ++misses_;
   }
   // Meshing runs outside the cache lock: other tiles (and other callers) are not held up.
+  const auto start = std::chrono::steady_clock::now();
   auto mesh = mapper.ExtractMeshTile(tile.key);
   if (!mesh.ok()) return mesh.status();
   const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
@@ -32,6 +34,9 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   encoded->draco = std::move(*draco);
   encoded->vertex_count = uint32_t(mesh->vertices.size());
   encoded->face_count = uint32_t(mesh->faces.size());
+  if (on_encoded_)
+    on_encoded_(encoded->draco.size(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   std::lock_guard<std::mutex> lock(mu_);
   auto& slot = tiles_[tile.key];
   if (!slot || slot->version <= encoded->version) slot = encoded;

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -23,6 +24,10 @@ struct EncodedTile {
 
 class TileCache {
  public:
+  // `on_encoded(bytes, seconds)` runs after each tile meshed and encoded (not for cache hits).
+  explicit TileCache(std::function<void(size_t, double)> on_encoded = nullptr)
+      : on_encoded_(std::move(on_encoded)) {}
+
   // The tile at `tile.version` or newer: from the cache when its encoding is that recent,
   // otherwise meshed and encoded now (a tile that changes while being meshed is tagged with the
   // version read before, so it is simply re-encoded next time).
@@ -33,6 +38,7 @@ class TileCache {
   uint64_t misses() const;
 
  private:
+  const std::function<void(size_t, double)> on_encoded_;
   mutable std::mutex mu_;
   std::unordered_map<Int3, std::shared_ptr<const EncodedTile>, Int3Hash, Int3Equal> tiles_;
   uint64_t hits_ = 0, misses_ = 0;

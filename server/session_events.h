@@ -1,0 +1,30 @@
+// What sessions and handlers report as they work, for the service's metrics (DESIGN.md §5.4).
+// Sessions know nothing of Prometheus: they call these hooks, which ServerMetrics implements.
+// Every hook may be called from any thread; the defaults do nothing.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "rim/mapper.h"
+
+namespace rim::server {
+
+class SessionEvents {
+ public:
+  virtual ~SessionEvents() = default;
+  virtual void ScanAccepted(const std::string& robot) {}
+  virtual void ScanRejected(const std::string& robot, absl::StatusCode code) {}
+  // A frame was trained (`timing` holds its per-stage times), or training it failed.
+  virtual void FrameIntegrated(const std::string& robot, const StageTimings& timing) {}
+  virtual void FrameFailed(const std::string& robot) {}
+  virtual void WalAppended(const std::string& robot, double seconds) {}
+  virtual void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) {}
+  // A tile was meshed and Draco-encoded (cache misses only).
+  virtual void TileEncoded(const std::string& robot, size_t bytes, double seconds) {}
+  virtual void QueryAnswered(const std::string& robot, size_t points, double seconds) {}
+};
+
+}  // namespace rim::server

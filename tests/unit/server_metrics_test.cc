@@ -1,0 +1,81 @@
+// ServerMetrics (server/metrics.h): the exposition text carries what the hooks were told, under
+// the names of docs/metrics.md, with the labels it documents.
+#include <string>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "server/metrics.h"
+
+namespace rim::server {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+TEST(ServerMetricsTest, MethodNamesDropTheRimServicePrefix) {
+  EXPECT_EQ(MetricMethodName("/rim.v1.Rim/CreateSession"), "CreateSession");
+  EXPECT_EQ(MetricMethodName("/grpc.health.v1.Health/Check"), "grpc.health.v1.Health/Check");
+  EXPECT_EQ(GrpcCodeName(0), "OK");
+  EXPECT_EQ(GrpcCodeName(3), "INVALID_ARGUMENT");
+  EXPECT_EQ(GrpcCodeName(16), "UNAUTHENTICATED");
+  EXPECT_EQ(GrpcCodeName(42), "CODE_42");
+}
+
+TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
+  ServerMetrics m(/*host_memory_budget_bytes=*/123456789);
+  m.ScanAccepted("r1");
+  m.ScanAccepted("r1");
+  m.ScanRejected("r1", absl::StatusCode::kInvalidArgument);
+  m.ScanRejected("r1", absl::StatusCode::kResourceExhausted);
+  m.ScanRejected("r1", absl::StatusCode::kNotFound);
+  StageTimings t;
+  t.total_s = 0.5;
+  t.forward_s = 0.1;
+  t.backward_s = 0.2;
+  m.FrameIntegrated("r1", t);
+  m.QueryAnswered("r2", 1000, 0.002);
+  m.TileEncoded("r1", 4096, 0.05);
+  m.CheckpointWritten("r1", 0.3, 1 << 20);
+  m.WalAppended("r1", 0.001);
+  m.RpcFinished("/rim.v1.Rim/QuerySdf", 5, 0.01);
+  // (The registry writes labels in name order.)
+  const std::string text = m.Text();
+  EXPECT_THAT(text, HasSubstr("rim_scans_accepted_total{session=\"r1\"} 2"));
+  EXPECT_THAT(text,
+              HasSubstr("rim_scans_rejected_total{reason=\"invalid_argument\",session=\"r1\"} 1"));
+  EXPECT_THAT(
+      text, HasSubstr("rim_scans_rejected_total{reason=\"resource_exhausted\",session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_scans_rejected_total{reason=\"other\",session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_scans_integrated_total{session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_frame_integration_seconds_sum{session=\"r1\"} 0.5"));
+  EXPECT_THAT(text,
+              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"backward\"} 0.2"));
+  // The time no stage accounts for is reported as "other": 0.5 - 0.1 - 0.2.
+  EXPECT_THAT(text,
+              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"other\"} 0.2"));
+  EXPECT_THAT(text, HasSubstr("rim_query_points_total{session=\"r2\"} 1000"));
+  EXPECT_THAT(text, HasSubstr("rim_mesh_tile_bytes_total{session=\"r1\"} 4096"));
+  EXPECT_THAT(text, HasSubstr("rim_checkpoint_seconds_count{session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_wal_append_seconds_count{session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_grpc_requests_total{code=\"NOT_FOUND\",method=\"QuerySdf\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_host_memory_budget_bytes 123456789"));
+  EXPECT_THAT(text, HasSubstr("rim_sessions_active 0"));
+  EXPECT_THAT(text, HasSubstr("rim_build_info{version="));
+  // Query latency buckets: 2 ms falls in le=0.0025 but not in le=0.001.
+  EXPECT_THAT(text, HasSubstr("rim_query_latency_seconds_bucket{session=\"r2\",le=\"0.0025\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_query_latency_seconds_bucket{session=\"r2\",le=\"0.001\"} 0"));
+  EXPECT_THAT(text, Not(HasSubstr("session=\"r3\"")));
+}
+
+TEST(ServerMetricsTest, ServeRefusesAnAddressItCannotBind) {
+  ServerMetrics m(0);
+  auto port = m.Serve("256.1.1.1:99999");
+  EXPECT_FALSE(port.ok());
+  ServerMetrics ok(0);
+  auto bound = ok.Serve("127.0.0.1:0");
+  ASSERT_TRUE(bound.ok()) << bound.status();
+  EXPECT_GT(*bound, 0);
+}
+
+}  // namespace
+}  // namespace rim::server
