@@ -1,0 +1,186 @@
+// rim's C++ client library: a small typed wrapper over the rim.v1 gRPC stubs (DESIGN.md §5.1).
+//
+//   auto client = rim::Client::Connect("127.0.0.1:50051");
+//   client->CreateSession("robot_1", "maicity", {{"train.iterations", "10"}});
+//   rim::SessionHandle session = client->Session("robot_1");
+//   auto summary = session.Stream(scans);           // waits for every INTEGRATED ack
+//   auto sdf = session.Query(points, /*want_gradient=*/true);
+//   auto tiles = session.MeshTiles(/*since_version=*/0);
+//
+// Every call returns absl::Status / absl::StatusOr with the server's gRPC code and message (the
+// codes of rim.proto: INVALID_ARGUMENT names the field, NOT_FOUND an unknown session, ...). A
+// server that cannot be reached gives UNAVAILABLE with "cannot reach rim_server at ADDR: ...".
+//
+// Every call carries `authorization: Bearer <token>` when a token is set, and every call about one
+// session carries `x-robot-id: <robot id>`, the header a proxy in front of several servers routes
+// by (DESIGN.md §6). A Client and its SessionHandles share one channel; they are cheap to copy and
+// safe to use from several threads at once.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "client/tiles.h"
+#include "rim/scan.h"
+#include "rim/types.h"
+#include "rim/v1/rim.pb.h"
+
+namespace rim {
+
+struct ClientOptions {
+  // Sent as `authorization: Bearer <token>` on every call when not empty.
+  std::string token;
+  // Deadline of each unary call and of each query (a chunked query gets it per chunk).
+  std::chrono::milliseconds deadline{30'000};
+  // Deadline of GetMeshTiles, which meshes every changed sub-map before it answers.
+  std::chrono::milliseconds mesh_deadline{300'000};
+  // How long Connect waits for the channel to come up.
+  std::chrono::milliseconds connect_timeout{10'000};
+};
+
+// Health of the server (or of one service) as the standard grpc.health.v1 check reports it.
+enum class ServingStatus { kUnknown, kServing, kNotServing, kServiceUnknown };
+const char* ServingStatusName(ServingStatus status);
+
+namespace client_internal {
+class Connection;
+}
+
+// One Scan stream's outcome.
+struct StreamSummary {
+  struct Rejection {
+    uint64_t sequence = 0;
+    int code = 0;  // gRPC status code of the rejection
+    std::string reason;
+  };
+  uint64_t sent = 0;
+  uint64_t accepted = 0;
+  uint64_t integrated = 0;
+  uint64_t rejected = 0;  // rejected on arrival, or accepted and then failed in training
+  std::vector<Rejection> rejections;
+  uint64_t map_version = 0;  // the newest map version an ack reported
+  double seconds = 0;        // from the first write to the last ack
+};
+
+struct StreamOptions {
+  // At most this many scans per second (a recorded sequence replayed in real time); 0: as fast as
+  // the server reads them (its flow control paces the stream when training lags).
+  double rate_hz = 0;
+  // Sequence number of the first scan; the stream numbers scans consecutively from it.
+  uint64_t first_sequence = 0;
+  // Called for every ack (ACCEPTED, INTEGRATED, REJECTED) on the stream's reader thread.
+  std::function<void(const rim::v1::ScanAck&)> on_ack;
+  // Called after each scan is written, with the number written so far (writer thread).
+  std::function<void(uint64_t sent)> on_sent;
+};
+
+// Fills *scan with the next scan to send and returns true, or returns false at the end. The
+// stream sets robot_id and sequence. An error ends the stream (scans already sent are still
+// integrated and acknowledged) and becomes Stream's result.
+using ScanSource = std::function<absl::StatusOr<bool>(rim::v1::Scan* scan)>;
+
+struct QueryResult {
+  std::vector<float> sdf;         // one per point, metres
+  std::vector<float> gradient;    // three per point when asked for, else empty
+  std::vector<uint8_t> observed;  // one per point: 1 observed, 0 an extrapolation
+  // The map version that answered; for a batch answered in chunks, the oldest of their versions
+  // (training may move the map between chunks).
+  uint64_t map_version = 0;
+  double server_seconds = 0;  // summed over chunks
+};
+
+struct Box3d {
+  std::array<double, 3> min = {0, 0, 0};
+  std::array<double, 3> max = {0, 0, 0};
+};
+
+struct WatchOptions {
+  uint64_t since_version = 0;
+  // Stop after this long (returning OK); 0: until the callback returns false or the session ends.
+  std::chrono::milliseconds duration{0};
+};
+
+// The calls about one session. Obtained from Client::Session; copies share the connection.
+class SessionHandle {
+ public:
+  const std::string& robot_id() const { return robot_id_; }
+
+  absl::StatusOr<rim::v1::SessionInfo> Info() const;
+
+  // Streams scans over one StreamScans call and returns once every sent scan has its final ack
+  // (INTEGRATED or REJECTED). A rejected scan does not end the stream; it is counted and listed
+  // in the summary. Errors: the source's error, or the stream's gRPC status.
+  absl::StatusOr<StreamSummary> Stream(const ScanSource& next,
+                                       const StreamOptions& options = {}) const;
+  absl::StatusOr<StreamSummary> Stream(const std::vector<PosedScan>& scans,
+                                       const StreamOptions& options = {}) const;
+
+  // Signed distances (and gradients) at world-frame points. Batches over the server's
+  // max_query_points (from GetServerInfo, asked once per Client) go over StreamQuerySdf in chunks
+  // of that size; the answer is the same as for one call.
+  absl::StatusOr<QueryResult> Query(const std::vector<Vec3f>& points_W,
+                                    bool want_gradient = false) const;
+
+  // Every tile newer than since_version (only those meeting `region` when given), decoded.
+  absl::StatusOr<std::vector<DecodedTile>> MeshTiles(
+      uint64_t since_version = 0, const std::optional<Box3d>& region = std::nullopt) const;
+
+  // Calls on_tile for each tile as training changes it, until on_tile returns false, the
+  // duration passes (both OK) or the stream fails (its status; NOT_FOUND for an unknown session,
+  // DataLoss for a tile that does not decode).
+  absl::Status Watch(const std::function<bool(const DecodedTile&)>& on_tile,
+                     const WatchOptions& options = {}) const;
+
+ private:
+  friend class Client;
+  SessionHandle(std::shared_ptr<client_internal::Connection> connection, std::string robot_id)
+      : connection_(std::move(connection)), robot_id_(std::move(robot_id)) {}
+
+  std::shared_ptr<client_internal::Connection> connection_;
+  std::string robot_id_;
+};
+
+class Client {
+ public:
+  // Opens a channel to `address` (host:port) and waits up to options.connect_timeout for it.
+  // UNAVAILABLE "cannot reach rim_server at ADDR: ..." when it does not come up.
+  static absl::StatusOr<Client> Connect(const std::string& address, ClientOptions options = {});
+
+  const std::string& address() const;
+
+  absl::StatusOr<rim::v1::ServerInfo> Info() const;
+  // Sessions by robot id. `overrides` are dotted config keys and values ("train.iterations", "10").
+  absl::StatusOr<rim::v1::SessionInfo> CreateSession(
+      const std::string& robot_id, const std::string& preset = "",
+      const std::vector<std::pair<std::string, std::string>>& overrides = {}) const;
+  absl::StatusOr<rim::v1::SessionInfo> GetSession(const std::string& robot_id) const;
+  absl::StatusOr<std::vector<rim::v1::SessionInfo>> ListSessions() const;
+  absl::StatusOr<rim::v1::SaveSessionResponse> SaveSession(const std::string& robot_id) const;
+  absl::StatusOr<rim::v1::SessionInfo> LoadSession(const std::string& robot_id) const;
+  absl::Status CloseSession(const std::string& robot_id, bool save) const;
+
+  // The standard health check (grpc.health.v1.Health/Check); "" asks about the whole server.
+  // A service the server does not know is kServiceUnknown, not an error.
+  absl::StatusOr<ServingStatus> Health(const std::string& service = "") const;
+
+  SessionHandle Session(const std::string& robot_id) const {
+    return SessionHandle(connection_, robot_id);
+  }
+
+ private:
+  explicit Client(std::shared_ptr<client_internal::Connection> connection)
+      : connection_(std::move(connection)) {}
+
+  std::shared_ptr<client_internal::Connection> connection_;
+};
+
+}  // namespace rim
