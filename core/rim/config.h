@@ -58,7 +58,7 @@ struct SamplerConfig {
   float observed_band_m = 0.15f;
   // Rays per frame walked voxel by voxel to mark the space in front of their endpoints as seen
   // free (queries report it observed); 0 turns it off.
-  int free_space_rays = 2048;
+  int free_space_rays = 4096;
   uint64_t seed = 7;
 };
 

@@ -76,4 +76,15 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
   }
 }
 
+void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map) {
+  if (!map->placed()) return;
+  const double inv_s = 1.0 / map->geometry().leaf_m();
+  LocalMap::Level& lv = map->level(0);
+  for (const Vec3f& p : points_W) {
+    const Int3 g(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
+                 int(std::floor(p.z() * inv_s)));
+    if (map->InBox(0, g)) lv.flags[map->Slot(0, g)] |= LocalMap::kObserved | LocalMap::kHasData;
+  }
+}
+
 }  // namespace rim

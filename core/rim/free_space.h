@@ -19,4 +19,9 @@ namespace rim {
 void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
                    float band_m, int max_rays, LocalMap* map);
 
+// Marks kObserved on the finest voxel of every endpoint inside the box: the sensor measured a
+// surface there, so queries report it observed and meshing visits it, whether or not a training
+// sample has landed in it yet.
+void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map);
+
 }  // namespace rim

@@ -108,6 +108,7 @@ void Mapper::Preprocess(const PosedScan& scan) {
       outside.origins_W.push_back(o_W);
     }
   }
+  MarkSurfaceVoxels(inside_p, local_map_.get());
   MarkFreeSpace(inside_p, inside_o, config_.sampler.observed_band_m,
                 config_.sampler.free_space_rays, local_map_.get());
   // Rays ending outside the box crossed it as free space up to the box face.
