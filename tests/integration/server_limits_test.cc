@@ -1,0 +1,344 @@
+// rim_server's limits and bad input, end to end (DESIGN.md §5.2): every malformed scan is rejected
+// with INVALID_ARGUMENT naming the field (or RESOURCE_EXHAUSTED for a limit), the stream goes on
+// and the session stays usable with exactly the valid scans in it; depth images are ingested;
+// queries and sessions have their limits; the host memory budget refuses sessions and scans; and
+// health reports NOT_SERVING until warm-up is done.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/client.h"
+#include "client/wire.h"
+#include "gmock/gmock.h"
+#include "rim/v1/rim.grpc.pb.h"
+#include "support/analytic_scene.h"
+#include "support/server_process.h"
+
+namespace rim {
+namespace {
+
+using ::testing::HasSubstr;
+using testing_support::ServerProcess;
+using testing_support::ServerProcessOptions;
+
+constexpr int kMaxPointsPerScan = 20000;
+constexpr int kMaxQueryPoints = 1000;
+
+const std::vector<std::pair<std::string, std::string>> kSmallMap = {
+    {"grid.half_extent_x_m", "2"},
+    {"grid.half_extent_y_m", "2"},
+    {"grid.z_min_m", "-1.2"},
+    {"grid.z_max_m", "1.2"},
+    {"train.iterations", "5"},
+    {"train.min_iterations", "5"},
+    {"sampler.rays_per_iteration", "512"}};
+
+// A valid LiDAR scan of a ground plane 1 m below the sensor.
+PosedScan GroundScan(double x) {
+  PosedScan scan;
+  scan.T_world_sensor = Eigen::Isometry3d::Identity();
+  scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 40; ++j)
+      scan.points_S.emplace_back(-1.5f + 0.075f * i, -1.5f + 0.075f * j, -1.f);
+  return scan;
+}
+
+// A depth camera looking straight down at the same ground, 1 m below: every pixel reads 1 m.
+rim::v1::Scan DepthScan(const std::string& robot, uint32_t width, uint32_t height) {
+  rim::v1::Scan scan = ScanToProto(GroundScan(0.2), robot, 0);
+  scan.clear_points_xyz();
+  // Camera frame: z forward. Rotate 180 degrees about x so that +z points down (world -z).
+  scan.mutable_pose()->mutable_rotation()->set_w(0);
+  scan.mutable_pose()->mutable_rotation()->set_x(1);
+  scan.mutable_pose()->mutable_rotation()->set_y(0);
+  scan.mutable_pose()->mutable_rotation()->set_z(0);
+  rim::v1::DepthImage* depth = scan.mutable_depth();
+  depth->set_width(width);
+  depth->set_height(height);
+  depth->set_encoding(rim::v1::DepthImage::UINT16);
+  depth->set_scale(1000.0);  // millimetres
+  depth->set_fx(40);
+  depth->set_fy(40);
+  depth->set_cx(width / 2.0);
+  depth->set_cy(height / 2.0);
+  std::string data(size_t(width) * height * 2, '\0');
+  for (size_t i = 0; i < size_t(width) * height; ++i) {
+    const uint16_t mm = 1000;
+    std::memcpy(&data[2 * i], &mm, 2);
+  }
+  depth->set_data(data);
+  return scan;
+}
+
+class ServerLimitsTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    ServerProcessOptions options;
+    options.args = {"--max-points-per-scan", std::to_string(kMaxPointsPerScan),
+                    "--max-query-points",    std::to_string(kMaxQueryPoints),
+                    "--max-sessions",        "2"};
+    auto server = ServerProcess::Start(options);
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = server->release();
+    auto client = Client::Connect(server_->address());
+    ASSERT_TRUE(client.ok()) << client.status();
+    client_ = new Client(std::move(*client));
+  }
+  static void TearDownTestSuite() {
+    delete client_;
+    if (server_) EXPECT_EQ(server_->Stop().value_or(-1), 0);
+    delete server_;
+  }
+  static ServerProcess* server_;
+  static Client* client_;
+};
+ServerProcess* ServerLimitsTest::server_ = nullptr;
+Client* ServerLimitsTest::client_ = nullptr;
+
+TEST_F(ServerLimitsTest, EveryBadScanIsRejectedByNameAndTheSessionStaysUsable) {
+  const std::string robot = "limits_robot";
+  ASSERT_TRUE(client_->CreateSession(robot, "maicity", kSmallMap).ok());
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+
+  struct Case {
+    const char* what;
+    rim::v1::Scan scan;
+    int code;  // expected gRPC code; 0: accepted and integrated
+    const char* reason;
+  };
+  std::vector<Case> cases;
+  auto good = [&](double x) { return ScanToProto(GroundScan(x), robot, 0); };
+  cases.push_back({"valid", good(0.0), 0, ""});
+  {
+    rim::v1::Scan s = good(0.1);
+    s.mutable_points_xyz()->push_back('x');
+    cases.push_back({"13 bytes too many", s, 3, "not a multiple of 12"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    std::string p = s.points_xyz();
+    std::memcpy(&p[12 * 5], &nan, 4);
+    s.set_points_xyz(p);
+    cases.push_back({"NaN point", s, 3, "scan.points_xyz has a non-finite value at point 5"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    s.mutable_pose()->mutable_translation()->set_y(inf);
+    cases.push_back({"Inf in the pose", s, 3, "scan.pose.translation is not finite"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    s.mutable_pose()->mutable_rotation()->set_w(0.5);
+    cases.push_back({"non-unit quaternion", s, 3, "not a unit quaternion"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    s.clear_points_xyz();
+    s.set_points_xyz("");
+    cases.push_back({"empty scan", s, 3, "scan.points_xyz is empty"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    s.set_origins_xyz(std::string(24, '\0'));
+    cases.push_back({"origins of the wrong length", s, 3, "scan.origins_xyz has 24 bytes"});
+  }
+  {
+    rim::v1::Scan s = DepthScan(robot, 64, 48);
+    s.mutable_depth()->mutable_data()->resize(64 * 48 * 2 - 2);
+    cases.push_back({"depth data vs size", s, 3, "scan.depth.data has"});
+  }
+  {
+    rim::v1::Scan s = DepthScan(robot, 64, 48);
+    s.mutable_depth()->set_fx(0);
+    cases.push_back({"depth intrinsics", s, 3, "scan.depth.fx"});
+  }
+  {
+    rim::v1::Scan s = good(0.1);
+    s.set_points_xyz(std::string(size_t(kMaxPointsPerScan + 1) * 12, '\0'));
+    cases.push_back({"too many points", s, 8, "--max-points-per-scan"});
+  }
+  cases.push_back({"valid depth image", DepthScan(robot, 64, 48), 0, ""});
+  cases.push_back({"valid again", good(0.3), 0, ""});
+
+  size_t next = 0;
+  std::vector<rim::v1::ScanAck> acks;
+  StreamOptions options;
+  options.on_ack = [&](const rim::v1::ScanAck& ack) { acks.push_back(ack); };
+  auto summary = client_->Session(robot).Stream(
+      [&](rim::v1::Scan* scan) -> absl::StatusOr<bool> {
+        if (next == cases.size()) return false;
+        *scan = cases[next++].scan;  // the stream sets robot id and sequence (= index)
+        return true;
+      },
+      options);
+  ASSERT_TRUE(summary.ok()) << summary.status();
+  for (size_t i = 0; i < cases.size(); ++i) {
+    const Case& c = cases[i];
+    std::vector<rim::v1::ScanAck> mine;
+    for (const auto& a : acks)
+      if (a.sequence() == i) mine.push_back(a);
+    ASSERT_FALSE(mine.empty()) << c.what;
+    if (c.code == 0) {
+      EXPECT_EQ(mine.back().state(), rim::v1::ScanAck::INTEGRATED) << c.what;
+    } else {
+      ASSERT_EQ(mine.size(), 1u) << c.what;
+      EXPECT_EQ(mine[0].state(), rim::v1::ScanAck::REJECTED) << c.what;
+      EXPECT_EQ(mine[0].code(), c.code) << c.what << ": " << mine[0].reason();
+      EXPECT_THAT(mine[0].reason(), HasSubstr(c.reason)) << c.what;
+    }
+  }
+  EXPECT_EQ(summary->integrated, 3u);
+  EXPECT_EQ(summary->rejected, cases.size() - 3);
+
+  // Exactly the valid scans are in the map, and it answers: the ground 1 m below the sensors.
+  auto info = client_->GetSession(robot);
+  ASSERT_TRUE(info.ok());
+  EXPECT_EQ(info->integrated_frames(), 3u);
+  auto q = client_->Session(robot).Query({Vec3f(0.2f, 0.1f, -1.f), Vec3f(0.3f, -0.2f, -0.5f)});
+  ASSERT_TRUE(q.ok()) << q.status();
+  EXPECT_LT(std::abs(q->sdf[0]), 0.05f);
+  EXPECT_EQ(q->observed[0], 1);
+  EXPECT_GT(q->sdf[1], 0.2f);
+  auto unknown = client_->Session("nobody").Query({Vec3f(0, 0, 0)});
+  EXPECT_EQ(unknown.status().code(), absl::StatusCode::kNotFound);
+  EXPECT_THAT(std::string(unknown.status().message()), HasSubstr("nobody"));
+}
+
+TEST_F(ServerLimitsTest, QueriesAndSessionsHaveTheirLimits) {
+  const std::string robot = "query_robot";
+  ASSERT_TRUE(client_->CreateSession(robot, "maicity", kSmallMap).ok());
+  auto stub = rim::v1::Rim::NewStub(
+      grpc::CreateChannel(server_->address(), grpc::InsecureChannelCredentials()));
+  auto query = [&](const std::string& bytes) {
+    grpc::ClientContext ctx;
+    rim::v1::QuerySdfRequest request;
+    request.set_robot_id(robot);
+    request.set_points_xyz(bytes);
+    rim::v1::QuerySdfResponse response;
+    return stub->QuerySdf(&ctx, request, &response);
+  };
+  grpc::Status s = query(std::string(size_t(kMaxQueryPoints + 1) * 12, '\0'));
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(s.error_message(), HasSubstr("StreamQuerySdf"));
+  s = query(std::string(25, '\0'));
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_THAT(s.error_message(), HasSubstr("points_xyz"));
+  std::string nan_points(24, '\0');
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::memcpy(&nan_points[16], &nan, 4);
+  s = query(nan_points);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_THAT(s.error_message(), HasSubstr("non-finite"));
+  EXPECT_TRUE(query(std::string(24, '\0')).ok());  // still usable
+
+  // --max-sessions 2: the other test's session and this one fill it.
+  auto third = client_->CreateSession("third_robot", "maicity", kSmallMap);
+  if (client_->ListSessions()->size() >= 2) {
+    EXPECT_EQ(third.status().code(), absl::StatusCode::kResourceExhausted);
+    EXPECT_THAT(std::string(third.status().message()), HasSubstr("--max-sessions"));
+  }
+}
+
+TEST(ServerMemoryBudgetTest, SessionsAndScansOverTheBudgetAreRefused) {
+  // The small map's live grids and optimiser state take about 5 MB: an 8 MB budget holds one
+  // session, not two.
+  ServerProcessOptions options;
+  options.args = {"--host-memory-budget-bytes", "8000000"};
+  auto server = ServerProcess::Start(options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  auto first = client->CreateSession("first", "maicity", kSmallMap);
+  ASSERT_TRUE(first.ok()) << first.status();
+  ASSERT_LT(first->host_memory_bytes(), 8000000u);
+  ASSERT_GT(2 * first->host_memory_bytes(), 8000000u);
+  auto second = client->CreateSession("second", "maicity", kSmallMap);
+  ASSERT_FALSE(second.ok());
+  EXPECT_EQ(second.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(second.status().message()), HasSubstr("host memory budget"));
+  // Nothing of the refused session stays: it is not listed and can be created elsewhere later.
+  EXPECT_EQ(client->ListSessions()->size(), 1u);
+  EXPECT_EQ(client->GetSession("second").status().code(), absl::StatusCode::kNotFound);
+
+  // A budget smaller than one session: scans are refused rather than growing the map.
+  ServerProcessOptions tight;
+  tight.args = {"--host-memory-budget-bytes", "1000"};
+  auto small = ServerProcess::Start(tight);
+  ASSERT_TRUE(small.ok());
+  auto small_client = Client::Connect((*small)->address());
+  ASSERT_TRUE(small_client.ok());
+  auto none = small_client->CreateSession("any", "maicity", kSmallMap);
+  EXPECT_EQ(none.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ((*small)->Stop().value_or(-1), 0);
+
+  // Room for one session and a hundred bytes more: the first scan is accepted (the budget is
+  // checked on arrival) and its points fill the buffer past the budget; from then on ingest
+  // refuses scans instead of growing.
+  ServerProcessOptions scans;
+  scans.args = {"--host-memory-budget-bytes", std::to_string(first->host_memory_bytes() + 100)};
+  auto grow = ServerProcess::Start(scans);
+  ASSERT_TRUE(grow.ok());
+  auto grow_client = Client::Connect((*grow)->address());
+  ASSERT_TRUE(grow_client.ok());
+  ASSERT_TRUE(grow_client->CreateSession("grower", "maicity", kSmallMap).ok());
+  auto one = grow_client->Session("grower").Stream({GroundScan(0)});
+  ASSERT_TRUE(one.ok()) << one.status();
+  ASSERT_EQ(one->integrated, 1u);
+  std::vector<PosedScan> frames = {GroundScan(0.1), GroundScan(0.2)};
+  std::vector<rim::v1::ScanAck> rejected;
+  StreamOptions stream_options;
+  stream_options.first_sequence = 1;
+  stream_options.on_ack = [&](const rim::v1::ScanAck& ack) {
+    if (ack.state() == rim::v1::ScanAck::REJECTED) rejected.push_back(ack);
+  };
+  auto summary = grow_client->Session("grower").Stream(frames, stream_options);
+  ASSERT_TRUE(summary.ok()) << summary.status();
+  EXPECT_EQ(summary->integrated, 0u);
+  ASSERT_EQ(rejected.size(), 2u);
+  EXPECT_EQ(rejected[0].code(), int(grpc::StatusCode::RESOURCE_EXHAUSTED));
+  EXPECT_THAT(rejected[0].reason(), HasSubstr("host memory budget exceeded"));
+  // What was accepted before is kept and answers queries.
+  auto info = grow_client->GetSession("grower");
+  ASSERT_TRUE(info.ok());
+  EXPECT_EQ(info->integrated_frames(), 1u);
+  EXPECT_EQ(info->rejected_frames(), 2u);
+  EXPECT_EQ((*grow)->Stop().value_or(-1), 0);
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+TEST(ServerWarmupTest, HealthIsNotServingUntilWarmedUp) {
+  ServerProcessOptions options;
+  options.wait_until_serving = false;
+  options.args = {"--warmup-frames", "6"};
+  auto server = ServerProcess::Start(options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  bool saw_not_serving = false;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  ServingStatus status = ServingStatus::kUnknown;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto h = client->Health();
+    ASSERT_TRUE(h.ok()) << h.status();
+    status = *h;
+    if (status == ServingStatus::kNotServing) saw_not_serving = true;
+    if (status == ServingStatus::kServing) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_TRUE(saw_not_serving) << "warm-up of 6 frames finished before the first health check";
+  EXPECT_EQ(status, ServingStatus::kServing);
+  EXPECT_THAT((*server)->Log(), HasSubstr("warmed up in"));
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+}  // namespace
+}  // namespace rim
