@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "rim/version.h"
+#include "server/compute_scheduler.h"
 #include "server/metrics.h"
 #include "server/server_config.h"
 #include "server/service.h"
@@ -46,9 +47,15 @@ int Run(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   rim::server::ServerMetrics metrics(config->host_memory_budget_bytes);
+  rim::server::ComputeScheduler scheduler(
+      config->train_slots > 0
+          ? config->train_slots
+          : rim::server::DefaultTrainSlots(std::thread::hardware_concurrency()));
+  std::cerr << "rim_server: " << scheduler.slots() << " training slot(s) shared by the sessions\n";
   rim::server::SessionManagerOptions manager_options;
   manager_options.host_memory_budget_bytes = config->host_memory_budget_bytes;
   manager_options.events = &metrics;
+  manager_options.scheduler = &scheduler;
   manager_options.data_dir = config->data_dir;
   manager_options.default_preset = config->default_preset;
   manager_options.max_sessions = config->max_sessions;

@@ -46,6 +46,8 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 1, &c->max_points_per_scan);
   } else if (name == "warmup-frames") {
     return ParseInt(name, value, 0, &c->warmup_frames);
+  } else if (name == "train-slots") {
+    return ParseInt(name, value, 0, &c->train_slots);
   } else if (name == "shutdown-deadline") {
     return ParseInt(name, value, 0, &c->shutdown_deadline_s);
   } else if (name == "host-memory-budget-bytes") {
@@ -90,7 +92,8 @@ std::string ServerUsage() {
          "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n"
          "                  [--host-memory-budget-bytes N (default 0 = none)]\n"
          "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
-         "                  [--shutdown-deadline SECONDS (default 10)]\n";
+         "                  [--shutdown-deadline SECONDS (default 10)]\n"
+         "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n";
 }
 
 std::string ServerConfig::ToString() const {
@@ -107,7 +110,8 @@ std::string ServerConfig::ToString() const {
     << "max_points_per_scan = " << max_points_per_scan << "\n"
     << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n"
     << "warmup_frames = " << warmup_frames << "\n"
-    << "shutdown_deadline = " << shutdown_deadline_s << "\n";
+    << "shutdown_deadline = " << shutdown_deadline_s << "\n"
+    << "train_slots = " << train_slots << "\n";
   return s.str();
 }
 

@@ -27,6 +27,8 @@ struct ServerConfig {
   int warmup_frames = 2;
   // SIGTERM: in-flight RPCs get this long to finish before they are cancelled.
   int shutdown_deadline_s = 10;
+  // Frames that may train at once across all sessions (ComputeScheduler); 0: one per two cores.
+  int train_slots = 0;
 
   // Every field as `key = value` lines.
   std::string ToString() const;

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <optional>
 
 #include "absl/strings/str_cat.h"
 
@@ -185,7 +186,12 @@ void Session::Run() {
 
     const int iterations = AdaptiveIterations(depth_at_start);
     StageTimings timing;
-    const absl::Status status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+    absl::Status status;
+    {
+      std::optional<ComputeScheduler::Lease> slot;
+      if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
+      status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+    }
 
     if (options_.events) {
       if (status.ok()) {

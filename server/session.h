@@ -18,6 +18,7 @@
 #include "rim/config.h"
 #include "rim/mapper.h"
 #include "rim/scan.h"
+#include "server/compute_scheduler.h"
 #include "server/session_events.h"
 #include "server/tile_cache.h"
 #include "server/wal.h"
@@ -34,6 +35,9 @@ struct SessionOptions {
   std::string checkpoint_dir;
   // Receives what the session does, for metrics; not owned, outlives the session; may be null.
   SessionEvents* events = nullptr;
+  // Shares the compute with other sessions: a slot is held while a frame trains. Not owned,
+  // outlives the session; null: train whenever a scan is queued.
+  ComputeScheduler* scheduler = nullptr;
 };
 
 struct IntegratedAck {

@@ -74,6 +74,7 @@ SessionOptions SessionManager::MakeSessionOptions(const std::string& robot_id) c
   o.checkpoint_every_frames = options_.checkpoint_every_frames;
   o.checkpoint_dir = AbsoluteDir(robot_id);
   o.events = options_.events;
+  o.scheduler = options_.scheduler;
   return o;
 }
 

@@ -27,6 +27,8 @@ struct SessionManagerOptions {
   uint64_t host_memory_budget_bytes = 0;
   // Receives what sessions do, for metrics; not owned; may be null.
   SessionEvents* events = nullptr;
+  // Shares the compute between the sessions' trainers; not owned; may be null.
+  ComputeScheduler* scheduler = nullptr;
 };
 
 // Host memory a session's map holds: live grids with optimiser state, sub-maps in memory, and the
