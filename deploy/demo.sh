@@ -80,16 +80,7 @@ say "accuracy against the simulator's ground truth"
 "$BUILD/clients/rim_sim" --scene city --out "$OUT/city" --frames "$FRAMES" --seed 3 > /dev/null
 # Score where the robot-centric map was asked to reconstruct: the preset's box (±10 m, z ±3 m
 # around the sensor) swept along the drive, 0.5 m inside its faces (as tests/e2e/offline_city.sh).
-REGION=$(python3 - "$OUT/city/poses.txt" << 'PY'
-import sys
-xs, ys, zs = [], [], []
-for line in open(sys.argv[1]):
-    v = [float(t) for t in line.split()]
-    xs.append(v[3]); ys.append(v[7]); zs.append(v[11])
-m = 9.5
-print(f"{min(xs)-m},{min(ys)-m},{min(zs)-2.5},{max(xs)+m},{max(ys)+m},{max(zs)+2.5}")
-PY
-)
+REGION="$(python3 "$ROOT/clients/tools/drive_region.py" "$OUT/city/poses.txt")"
 "$BUILD/clients/rim_eval" "$OUT/mesh/mesh.ply" "$OUT/city/gt.ply" --region "$REGION" --json \
   > "$OUT/eval_mesh.json"
 "$BUILD/clients/rim_eval" "$OUT/mesh/mesh.ply" "$OUT/city/gt_observed.ply" --region "$REGION" \

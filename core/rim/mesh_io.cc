@@ -409,13 +409,17 @@ Mesh WeldIdenticalVertices(const Mesh& mesh) {
     if (inserted) out.vertices.push_back(mesh.vertices[i]);
     remap[i] = it->second;
   }
-  out.faces.reserve(mesh.faces.size());
+  AppendRemappedFaces(mesh, remap, &out);
+  return out;
+}
+
+void AppendRemappedFaces(const Mesh& mesh, const std::vector<uint32_t>& remap, Mesh* out) {
+  out->faces.reserve(out->faces.size() + mesh.faces.size());
   for (const auto& f : mesh.faces) {
     const std::array<uint32_t, 3> g = {remap[f[0]], remap[f[1]], remap[f[2]]};
     if (g[0] == g[1] || g[1] == g[2] || g[0] == g[2]) continue;
-    out.faces.push_back(g);
+    out->faces.push_back(g);
   }
-  return out;
 }
 
 }  // namespace rim

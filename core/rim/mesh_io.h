@@ -2,6 +2,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -24,6 +25,10 @@ absl::StatusOr<Mesh> ReadMeshPly(const std::string& path);
 
 // Appends src to *dst, offsetting src's face indices by the vertices already in *dst.
 void AppendMesh(const Mesh& src, Mesh* dst);
+
+// Appends `mesh`'s faces to *out with every index i replaced by remap[i], dropping faces that
+// collapse (two equal indices): the last step of any vertex weld.
+void AppendRemappedFaces(const Mesh& mesh, const std::vector<uint32_t>& remap, Mesh* out);
 
 // Merges vertices whose positions are bit-identical (with -0 and +0 treated as equal), keeping
 // first-occurrence order, e.g. to merge per-tile meshes whose borders share vertices. Faces that

@@ -4,6 +4,7 @@
 # Usage: offline_city.sh BUILD_DIR [WORK_DIR]
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
+ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
 if [ -n "${2:-}" ]; then
   WORK="$2"
 else
@@ -19,16 +20,7 @@ FRAMES="${RIM_E2E_FRAMES:-40}"
 # Evaluate where the mapper was asked to reconstruct: the maicity local box (±10 m, z −3..+3 m
 # around the sensor) swept along the drive, kept 0.5 m inside its faces. Walls above the box and
 # streets beyond it were never in any local map.
-REGION=$(python3 - "$WORK/city/poses.txt" <<'PY'
-import sys
-xs, ys, zs = [], [], []
-for line in open(sys.argv[1]):
-    v = [float(t) for t in line.split()]
-    xs.append(v[3]); ys.append(v[7]); zs.append(v[11])
-m = 9.5
-print(f"{min(xs)-m},{min(ys)-m},{min(zs)-2.5},{max(xs)+m},{max(ys)+m},{max(zs)+2.5}")
-PY
-)
+REGION="$(python3 "$ROOT/clients/tools/drive_region.py" "$WORK/city/poses.txt")"
 # Accuracy and precision against the scene mesh (dense, exact surfaces); completeness and recall
 # against the surface the LiDAR saw from inside each frame's box (gt_observed.ply): the full mesh
 # also holds ground under parked cars and faces behind buildings that no scan reached.

@@ -82,12 +82,7 @@ Mesh WeldVertices(const Mesh& mesh, double tolerance_m) {
     }
     remap[i] = static_cast<uint32_t>(found);
   }
-  out.faces.reserve(mesh.faces.size());
-  for (const auto& f : mesh.faces) {
-    const std::array<uint32_t, 3> g = {remap[f[0]], remap[f[1]], remap[f[2]]};
-    if (g[0] == g[1] || g[1] == g[2] || g[0] == g[2]) continue;
-    out.faces.push_back(g);
-  }
+  AppendRemappedFaces(mesh, remap, &out);
   return out;
 }
 
