@@ -1,0 +1,121 @@
+// Whole frames through Mapper::IntegrateScan (Alg. 1) on the city sequence.
+//
+// Frame/PRESET: a fresh mapper integrates Options().warmup_frames frames untimed, then each
+// benchmark iteration is the next frame, Options().measured_frames of them. Wall time is ms per
+// frame; the counters are the mapper's own StageTimings, ms per frame.
+//
+// Sequence/PRESET (long mode only): the whole sequence from an empty map, with resident memory
+// and sub-map bytes recorded every frame (counters every 10 frames, all frames in the CSV).
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "bench/bench_common.h"
+
+namespace rim::bench {
+namespace {
+
+std::unique_ptr<Mapper> NewMapper(const std::string& preset) {
+  absl::StatusOr<std::unique_ptr<Mapper>> mapper = Mapper::Create(Preset(preset));
+  CheckOk(mapper.status(), "Mapper::Create");
+  return *std::move(mapper);
+}
+
+void SetStageCounters(benchmark::State& state, const StageTimings& t) {
+  auto per_frame = [](double s) {
+    return benchmark::Counter(1e3 * s, benchmark::Counter::kAvgIterations);
+  };
+  state.counters["slide_ms"] = per_frame(t.slide_s);
+  state.counters["preprocess_ms"] = per_frame(t.preprocess_s);
+  state.counters["sample_ms"] = per_frame(t.sample_s);
+  state.counters["encode_ms"] = per_frame(t.encode_s);
+  state.counters["forward_ms"] = per_frame(t.forward_s);
+  state.counters["backward_ms"] = per_frame(t.backward_s);
+  state.counters["step_ms"] = per_frame(t.step_s);
+  state.counters["total_ms"] = per_frame(t.total_s);
+  state.counters["iterations"] =
+      benchmark::Counter(t.iterations, benchmark::Counter::kAvgIterations);
+}
+
+void BM_Frame(benchmark::State& state, const std::string& preset) {
+  const std::vector<PosedScan>& frames = CitySequence();
+  std::unique_ptr<Mapper> mapper = NewMapper(preset);
+  size_t k = 0;
+  for (; k < size_t(Options().warmup_frames) && k < frames.size(); ++k)
+    CheckOk(mapper->IntegrateScan(frames[k]), "IntegrateScan (warm-up)");
+  StageTimings sum;
+  for (auto _ : state) {
+    if (k >= frames.size()) {
+      state.SkipWithError("the sequence is shorter than warm-up plus measured frames");
+      break;
+    }
+    StageTimings t;
+    CheckOk(mapper->IntegrateScan(frames[k++], -1, &t), "IntegrateScan");
+    sum += t;
+  }
+  SetStageCounters(state, sum);
+  state.counters["rss_mb"] = double(ResidentBytes()) / (1 << 20);
+}
+
+void BM_Sequence(benchmark::State& state, const std::string& preset) {
+  const std::vector<PosedScan>& frames = CitySequence();
+  std::FILE* csv = nullptr;
+  if (!Options().rss_csv.empty()) {
+    const std::string path = Options().rss_csv + "." + preset + ".csv";
+    csv = std::fopen(path.c_str(), "w");
+    if (csv) std::fprintf(csv, "frame,ms,rss_bytes,submap_bytes,local_map_bytes\n");
+  }
+  for (auto _ : state) {
+    std::unique_ptr<Mapper> mapper = NewMapper(preset);
+    StageTimings sum;
+    for (size_t k = 0; k < frames.size(); ++k) {
+      StageTimings t;
+      CheckOk(mapper->IntegrateScan(frames[k], -1, &t), "IntegrateScan");
+      sum += t;
+      const int64_t rss = ResidentBytes();
+      const MapperStats stats = mapper->Stats();
+      if (csv)
+        std::fprintf(csv, "%zu,%.3f,%lld,%lld,%lld\n", k, 1e3 * t.total_s, (long long)rss,
+                     (long long)stats.submap_bytes, (long long)stats.local_map_bytes);
+      if (k % 10 == 0 || k + 1 == frames.size()) {
+        char name[32];
+        std::snprintf(name, sizeof(name), "rss_mb_f%03zu", k);
+        state.counters[name] = double(rss) / (1 << 20);
+        std::snprintf(name, sizeof(name), "submap_mb_f%03zu", k);
+        state.counters[name] = double(stats.submap_bytes) / (1 << 20);
+      }
+    }
+    state.counters["frames"] = double(frames.size());
+    state.counters["ms_per_frame"] = 1e3 * sum.total_s / double(frames.size());
+    state.counters["step_ms_per_frame"] = 1e3 * sum.step_s / double(frames.size());
+  }
+  if (csv) std::fclose(csv);
+}
+
+}  // namespace
+
+void RegisterFrameBenchmarks() {
+  for (const char* preset : {"maicity", "maicity_online"}) {
+    benchmark::RegisterBenchmark((std::string("Frame/") + preset).c_str(), BM_Frame,
+                                 std::string(preset))
+        ->Iterations(Options().measured_frames)
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
+  }
+}
+
+void RegisterSequenceBenchmarks() {
+  for (const char* preset : {"maicity", "maicity_online"}) {
+    benchmark::RegisterBenchmark((std::string("Sequence/") + preset).c_str(), BM_Sequence,
+                                 std::string(preset))
+        ->Iterations(1)
+        ->Repetitions(1)
+        ->Unit(benchmark::kSecond)
+        ->UseRealTime();
+  }
+}
+
+}  // namespace rim::bench

@@ -1,0 +1,156 @@
+// What reads a trained map (TrainedMapper(): maicity_online, Options().map_frames frames):
+// SDF queries (§3.5), mesh tiles and their Draco encoding (§3.6, §5.1), save and load (§5.3).
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "bench/bench_common.h"
+#include "server/mesh_codec.h"
+
+namespace rim::bench {
+namespace {
+
+constexpr size_t kMaxQueryPoints = 1000000;
+
+// Query points where a robot asks: near the surfaces it scanned (world-frame endpoints of the
+// mapped frames, moved uniformly by up to ±0.3 m), fixed seed.
+const std::vector<float>& QueryPoints() {
+  static const std::vector<float>* points = [] {
+    const std::vector<PosedScan>& frames = CitySequence();
+    const int n_frames = std::max(1, std::min<int>(Options().map_frames, int(frames.size())));
+    std::mt19937_64 rng(1234);
+    std::uniform_int_distribution<int> pick_frame(0, n_frames - 1);
+    std::uniform_real_distribution<float> jitter(-0.3f, 0.3f);
+    auto* out = new std::vector<float>();
+    out->reserve(3 * kMaxQueryPoints);
+    while (out->size() < 3 * kMaxQueryPoints) {
+      const PosedScan& scan = frames[pick_frame(rng)];
+      std::uniform_int_distribution<size_t> pick_point(0, scan.points_S.size() - 1);
+      const Vec3f p_W = scan.T_world_sensor.cast<float>() * scan.points_S[pick_point(rng)];
+      for (int a = 0; a < 3; ++a) out->push_back(p_W[a] + jitter(rng));
+    }
+    return out;
+  }();
+  return *points;
+}
+
+// Args: batch size, gradient (0/1).
+void BM_Query(benchmark::State& state) {
+  const Mapper& mapper = TrainedMapper();
+  const size_t n = size_t(state.range(0));
+  const bool gradient = state.range(1) != 0;
+  const std::vector<float>& xyz = QueryPoints();
+  QueryResult result;
+  WallClock clock;
+  for (auto _ : state) {
+    clock.Start();
+    CheckOk(mapper.QuerySdf(xyz.data(), n, gradient, &result), "QuerySdf");
+    benchmark::DoNotOptimize(result.sdf.data());
+    clock.Stop();
+  }
+  size_t observed = 0;
+  for (uint8_t o : result.observed) observed += o != 0;
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(n));
+  // Wall clock, whatever time the library uses for its own rates.
+  state.counters["points_per_s"] = double(n) * double(state.iterations()) / clock.seconds();
+  state.counters["observed_fraction"] = double(observed) / double(n);
+}
+
+// The tile with the most observed voxels: the fullest tile the sequence produced.
+TileInfo FullestTile(const Mapper& mapper, size_t* observed_voxels) {
+  TileInfo best;
+  *observed_voxels = 0;
+  for (const TileInfo& tile : mapper.ListTiles(0)) {
+    const size_t n = mapper.ObservedVoxels(tile.key).size();
+    if (n > *observed_voxels) {
+      *observed_voxels = n;
+      best = tile;
+    }
+  }
+  return best;
+}
+
+void BM_MeshTile(benchmark::State& state) {
+  const Mapper& mapper = TrainedMapper();
+  size_t voxels = 0;
+  const TileInfo tile = FullestTile(mapper, &voxels);
+  Mesh mesh;
+  WallClock clock;
+  for (auto _ : state) {
+    clock.Start();
+    absl::StatusOr<Mesh> m = mapper.ExtractMeshTile(tile.key);
+    clock.Stop();
+    CheckOk(m.status(), "ExtractMeshTile");
+    mesh = *std::move(m);
+  }
+  state.counters["observed_voxels"] = double(voxels);
+  state.counters["vertices"] = double(mesh.vertices.size());
+  state.counters["faces"] = double(mesh.faces.size());
+  // Observed share of the tile's 20 × 20 m footprint at the leaf size (a full tile is ~1).
+  const double leaf = mapper.config().grid.leaf_size_m;
+  const Vec3d size = tile.max_m - tile.min_m;
+  state.counters["footprint_fraction"] = double(voxels) * leaf * leaf / (size.x() * size.y());
+  state.counters["us_per_observed_voxel"] =
+      1e6 * clock.seconds() / double(state.iterations()) / std::max<double>(1, double(voxels));
+}
+
+void BM_DracoEncodeTile(benchmark::State& state) {
+  const Mapper& mapper = TrainedMapper();
+  size_t voxels = 0;
+  const TileInfo tile = FullestTile(mapper, &voxels);
+  absl::StatusOr<Mesh> mesh = mapper.ExtractMeshTile(tile.key);
+  CheckOk(mesh.status(), "ExtractMeshTile");
+  const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
+  const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
+  size_t bytes = 0;
+  for (auto _ : state) {
+    absl::StatusOr<std::string> encoded = server::EncodeTileDraco(*mesh, lo, hi);
+    CheckOk(encoded.status(), "EncodeTileDraco");
+    bytes = encoded->size();
+  }
+  state.counters["faces"] = double(mesh->faces.size());
+  state.counters["bytes"] = double(bytes);
+  state.counters["bytes_per_face"] = double(bytes) / std::max<double>(1, mesh->faces.size());
+}
+
+void BM_SaveSession(benchmark::State& state) {
+  const Mapper& mapper = TrainedMapper();
+  TempDir dir;
+  for (auto _ : state) CheckOk(mapper.Save(dir.path()), "Mapper::Save");
+  state.counters["bytes"] = double(dir.SizeBytes());
+}
+
+void BM_LoadSession(benchmark::State& state) {
+  TempDir dir;
+  CheckOk(TrainedMapper().Save(dir.path()), "Mapper::Save");
+  for (auto _ : state) {
+    absl::StatusOr<std::unique_ptr<Mapper>> loaded = Mapper::Load(dir.path());
+    CheckOk(loaded.status(), "Mapper::Load");
+    benchmark::DoNotOptimize(loaded->get());
+  }
+  state.counters["bytes"] = double(dir.SizeBytes());
+}
+
+}  // namespace
+
+void RegisterMapBenchmarks() {
+  for (int gradient : {0, 1}) {
+    for (int64_t n : {1000, 100000, 1000000}) {
+      benchmark::RegisterBenchmark("Query", BM_Query)
+          ->ArgNames({"points", "gradient"})
+          ->Args({n, gradient})
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime();
+    }
+  }
+  for (auto [name, fn] :
+       {std::pair{"MeshTile", BM_MeshTile}, std::pair{"DracoEncodeTile", BM_DracoEncodeTile},
+        std::pair{"Session/Save", BM_SaveSession}, std::pair{"Session/Load", BM_LoadSession}}) {
+    benchmark::RegisterBenchmark(name, fn)->Unit(benchmark::kMillisecond)->UseRealTime();
+  }
+}
+
+}  // namespace rim::bench
