@@ -27,10 +27,11 @@ RUN cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DRIM_BUILD_TESTS=OF
 FROM debian:bookworm-slim AS runtime
 # The Debian packages that own the binaries' direct shared-library dependencies (readelf NEEDED +
 # dpkg -S on a bookworm build); apt brings in what those need. libc6, libgcc-s1, libstdc++6 and
-# zlib1g are part of the base image. libprometheus-cpp-* serve --metrics.
+# zlib1g are part of the base image. libprometheus-cpp-* serve --metrics. libopenblas0-pthread
+# takes over libblas.so.3 from the reference BLAS (libtorch's matrix products, BENCHMARK.md).
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-      libtorch1.13 \
+      libtorch1.13 libopenblas0-pthread \
       libgrpc++1.51 libgrpc29 libprotobuf32 libabsl20220623 \
       libprometheus-cpp-core1.0 libprometheus-cpp-pull1.0 \
       libdraco7 libpng16-16 \

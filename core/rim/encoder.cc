@@ -29,19 +29,28 @@ void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* en
       }
       int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
       float* w = &enc->weights[(size_t(p) * L + l) * 8];
+      for (int c = 0; c < 8; ++c) {
+        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+        slots[c] = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
+                   (cz ? s1[2] : s0[2]);
+        w[c] = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
+      }
+    }
+    // Second pass, once every point's corners are known: the feature rows are scattered over the
+    // dense grid, so a later point's rows are requested while this one's are summed.
+    constexpr int kAhead = 4;
+    for (int p = 0; p < n; ++p) {
+      if (p + kAhead < n) {
+        const int64_t* ahead = &enc->slots[(size_t(p + kAhead) * L + l) * 8];
+        for (int c = 0; c < 8; ++c) __builtin_prefetch(&lv.features[ahead[c] * D]);
+      }
+      const int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
+      const float* w = &enc->weights[(size_t(p) * L + l) * 8];
       float* out = features + size_t(p) * L * D + size_t(l) * D;
       std::fill_n(out, D, 0.f);
       for (int c = 0; c < 8; ++c) {
-        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-        const int64_t slot =
-            (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
-            (cz ? s1[2] : s0[2]);
-        const float wc =
-            (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
-        slots[c] = slot;
-        w[c] = wc;
-        const float* feat = &lv.features[slot * D];
-        for (int d = 0; d < D; ++d) out[d] += wc * feat[d];
+        const float* feat = &lv.features[slots[c] * D];
+        for (int d = 0; d < D; ++d) out[d] += w[c] * feat[d];
       }
     }
   }
@@ -69,6 +78,10 @@ void SparseGradient::BeginIteration() {
   }
 }
 
+namespace {
+constexpr int kPrefetchPoints = 4;
+}  // namespace
+
 void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
                              const float* grad_features) {
   const int L = map.geometry().levels(), D = map.geometry().feature_dim();
@@ -78,6 +91,15 @@ void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
     for (int p = 0; p < enc.points; ++p) {
       const float* g = grad_features + size_t(p) * L * D + size_t(l) * D;
       const int64_t* slots = &enc.slots[(size_t(p) * L + l) * 8];
+      // The slots are scattered over the dense grid: ask for a later point's stamps now so that
+      // several cache misses are in flight at once instead of one after the other.
+      if (p + kPrefetchPoints < enc.points) {
+        const int64_t* ahead = &enc.slots[(size_t(p + kPrefetchPoints) * L + l) * 8];
+        for (int c = 0; c < 8; c += 2) {
+          __builtin_prefetch(&lv.stamp[ahead[c]], 1);
+          __builtin_prefetch(&lv.row[ahead[c]], 1);
+        }
+      }
       const float* w = &enc.weights[(size_t(p) * L + l) * 8];
       for (int c = 0; c < 8; ++c) {
         const int64_t slot = slots[c];

@@ -91,6 +91,10 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
   return out->loss;
 }
 
+namespace {
+constexpr size_t kPrefetchRows = 8;
+}  // namespace
+
 void Trainer::ApplyFeatureUpdates() {
   const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                         config_.train.adam_beta2, config_.train.adam_eps};
@@ -99,7 +103,18 @@ void Trainer::ApplyFeatureUpdates() {
     LocalMap::Level& lv = map_->level(l);
     SparseGradient::Level& g = grad_.level(l);
     // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
-    for (size_t r = 0; r < g.touched.size(); ++r) {
+    const size_t n = g.touched.size();
+    for (size_t r = 0; r < n; ++r) {
+      // Rows are scattered over the dense grid: start loading a later row's features and
+      // moments now, so that the misses overlap instead of queueing one after another.
+      if (r + kPrefetchRows < n) {
+        const int64_t ahead = g.touched[r + kPrefetchRows];
+        __builtin_prefetch(&lv.features[ahead * D], 1);
+        __builtin_prefetch(&lv.adam_m[ahead * D], 1);
+        __builtin_prefetch(&lv.adam_v[ahead * D], 1);
+        __builtin_prefetch(&lv.adam_steps[ahead], 1);
+        __builtin_prefetch(&lv.flags[ahead], 1);
+      }
       const int64_t slot = g.touched[r];
       float step_size, inv_sqrt_bc2;
       bias_.Get(++lv.adam_steps[slot], &step_size, &inv_sqrt_bc2);
