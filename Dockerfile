@@ -27,11 +27,10 @@ RUN cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DRIM_BUILD_TESTS=OF
 FROM debian:bookworm-slim AS runtime
 # The Debian packages that own the binaries' direct shared-library dependencies (readelf NEEDED +
 # dpkg -S on a bookworm build); apt brings in what those need. libc6, libgcc-s1, libstdc++6 and
-# zlib1g are part of the base image. libprometheus-cpp-* serve --metrics. libopenblas0-pthread
-# takes over libblas.so.3 from the reference BLAS (libtorch's matrix products, BENCHMARK.md).
+# zlib1g are part of the base image. libprometheus-cpp-* serve --metrics.
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-      libtorch1.13 libopenblas0-pthread \
+      libtorch1.13 libssl3 \
       libgrpc++1.51 libgrpc29 libprotobuf32 libabsl20220623 \
       libprometheus-cpp-core1.0 libprometheus-cpp-pull1.0 \
       libdraco7 libpng16-16 \
@@ -49,4 +48,7 @@ EXPOSE 50051 9090
 HEALTHCHECK --interval=30s --timeout=5s --start-period=2m --retries=3 \
   CMD ["rimctl", "--server", "127.0.0.1:50051", "health"]
 STOPSIGNAL SIGTERM
-ENTRYPOINT ["rim_server", "--listen", "0.0.0.0:50051", "--metrics", "0.0.0.0:9090", "--data-dir", "/data"]
+# Listening on all interfaces without tokens needs --insecure (docs/security.md): the image is meant
+# to sit behind a proxy or on a private network. Anything reachable from outside should add
+# `--tokens /run/secrets/rim-tokens` (and --tls-cert/--tls-key) to the container's arguments.
+ENTRYPOINT ["rim_server", "--listen", "0.0.0.0:50051", "--metrics", "0.0.0.0:9090", "--data-dir", "/data", "--insecure"]

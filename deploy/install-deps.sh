@@ -9,12 +9,11 @@ PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config git ca-certificates
   # core
   libtorch-dev libeigen3-dev libabsl-dev zlib1g-dev libpng-dev
-  # an optimised BLAS for libtorch's matrix products (replaces the reference libblas.so.3 through
-  # Debian's alternatives; the MLP's train step runs 4-10x faster, BENCHMARK.md)
-  libopenblas0-pthread
   # service
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev libdraco-dev
+  # token digests (SHA-256) for rim_server --tokens
+  libssl-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev prometheus python3-yaml
   # python client

@@ -2,13 +2,19 @@
 // and reflection, and Prometheus metrics on --metrics. Health says SERVING once warmed up; on
 // SIGTERM or SIGINT it goes NOT_SERVING, stops accepting, finishes in-flight RPCs within
 // --shutdown-deadline, then drains and saves every session and exits 0.
+// Access control (--tokens), TLS (--tls-cert, --tls-key, --tls-client-ca) and the refusal to serve
+// a non-loopback address without tokens are described in docs/security.md.
+#include <fcntl.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <signal.h>
+#include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -17,6 +23,7 @@
 #include "rim/version.h"
 #include "server/compute_scheduler.h"
 #include "server/metrics.h"
+#include "server/security.h"
 #include "server/server_config.h"
 #include "server/service.h"
 #include "server/session_manager.h"
@@ -24,7 +31,35 @@
 
 namespace {
 
+int g_signal_pipe[2] = {-1, -1};
+
+// Async-signal-safe: one byte down the pipe, read by the shutdown thread.
+void OnShutdownSignal(int signal) {
+  const char c = char(signal);
+  const int saved = errno;
+  [[maybe_unused]] const ssize_t n = write(g_signal_pipe[1], &c, 1);
+  errno = saved;
+}
+
+// rim_server --hash-token TOKEN|-: the digest for a --tokens line ('-' reads the token from stdin,
+// which keeps it out of the shell history and the process list).
+int HashToken(int argc, char** argv) {
+  if (argc != 3) {
+    std::cerr << "usage: rim_server --hash-token TOKEN|-\n";
+    return 2;
+  }
+  std::string token = argv[2];
+  if (token == "-" && !std::getline(std::cin, token)) token.clear();
+  if (token.empty()) {
+    std::cerr << "rim_server: --hash-token: empty token\n";
+    return 2;
+  }
+  std::cout << rim::server::HashToken(token) << "\n";
+  return 0;
+}
+
 int Run(int argc, char** argv) {
+  if (argc >= 2 && std::string(argv[1]) == "--hash-token") return HashToken(argc, argv);
   for (int i = 1; i < argc; ++i) {
     if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
       std::cout << rim::server::ServerUsage();
@@ -39,12 +74,29 @@ int Run(int argc, char** argv) {
   std::cerr << "rim_server " << rim::kRimVersion << " effective config:\n"
             << config->ToString() << std::flush;
 
-  // Block the shutdown signals in every thread (gRPC's included); one thread waits for them.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGTERM);
-  sigaddset(&signals, SIGINT);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  // SIGTERM and SIGINT reach a handler that only writes to a pipe; one thread reads it and shuts
+  // down. (Blocking the signals and sigwait-ing would miss threads started before main, such as
+  // OpenBLAS's pool: the kernel may deliver the signal to any of them.) A full disk or a file-size
+  // limit must give write errors, not kill the process: SIGXFSZ is ignored, like SIGPIPE.
+  if (pipe2(g_signal_pipe, O_CLOEXEC) != 0) {
+    std::cerr << "rim_server: pipe2: " << std::strerror(errno) << "\n";
+    return 1;
+  }
+  struct sigaction on_signal = {};
+  on_signal.sa_handler = OnShutdownSignal;
+  sigemptyset(&on_signal.sa_mask);
+  on_signal.sa_flags = SA_RESTART;
+  sigaction(SIGTERM, &on_signal, nullptr);
+  sigaction(SIGINT, &on_signal, nullptr);
+  signal(SIGXFSZ, SIG_IGN);
+  signal(SIGPIPE, SIG_IGN);
+  // Exposure rule, tokens and TLS credentials (docs/security.md); a bad setting is exit 2.
+  auto security = rim::server::SetUpSecurity(*config);
+  if (!security.ok()) {
+    std::cerr << "rim_server: " << security.status().message() << "\n";
+    return 2;
+  }
+  for (const std::string& line : security->log_lines) std::cerr << "rim_server: " << line << "\n";
 
   rim::server::ServerMetrics metrics(config->host_memory_budget_bytes);
   rim::server::ComputeScheduler scheduler(
@@ -81,13 +133,13 @@ int Run(int argc, char** argv) {
   limits.queue_length = config->queue_length;
   limits.max_sessions = config->max_sessions;
   limits.host_memory_budget_bytes = config->host_memory_budget_bytes;
-  rim::server::RimService service(&sessions, limits);
+  rim::server::RimService service(&sessions, limits, &security->authorizer);
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort(config->listen, grpc::InsecureServerCredentials(), &port);
+  builder.AddListeningPort(config->listen, security->credentials, &port);
   builder.RegisterService(&service);
   builder.experimental().SetInterceptorCreators(metrics.InterceptorFactories());
   // Scans and query batches are large; the size limits are enforced by the handlers.
@@ -114,10 +166,12 @@ int Run(int argc, char** argv) {
   server->GetHealthCheckService()->SetServingStatus(true);
 
   std::thread signal_thread([&] {
-    int signal = 0;
-    sigwait(&signals, &signal);
-    std::cerr << "rim_server: signal " << signal << ", shutting down\n";
+    char signal = 0;
+    while (read(g_signal_pipe[0], &signal, 1) < 0 && errno == EINTR) {
+    }
+    std::cerr << "rim_server: signal " << int(signal) << ", shutting down\n";
     server->GetHealthCheckService()->SetServingStatus(false);
+    sessions.BeginShutdown();
     server->Shutdown(std::chrono::system_clock::now() +
                      std::chrono::seconds(config->shutdown_deadline_s));
   });

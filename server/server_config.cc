@@ -50,6 +50,19 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 0, &c->train_slots);
   } else if (name == "shutdown-deadline") {
     return ParseInt(name, value, 0, &c->shutdown_deadline_s);
+  } else if (name == "tokens") {
+    c->tokens_file = value;
+  } else if (name == "tls-cert") {
+    c->tls_cert = value;
+  } else if (name == "tls-key") {
+    c->tls_key = value;
+  } else if (name == "tls-client-ca") {
+    c->tls_client_ca = value;
+  } else if (name == "insecure") {
+    if (value != "true" && value != "false")
+      return absl::InvalidArgumentError(
+          absl::StrCat("--insecure: expected true or false, got '", value, "'"));
+    c->insecure = value == "true";
   } else if (name == "host-memory-budget-bytes") {
     if (!absl::SimpleAtoi(value, &c->host_memory_budget_bytes))
       return absl::InvalidArgumentError(absl::StrCat("--", name, ": bad value '", value, "'"));
@@ -93,7 +106,12 @@ std::string ServerUsage() {
          "                  [--host-memory-budget-bytes N (default 0 = none)]\n"
          "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
          "                  [--shutdown-deadline SECONDS (default 10)]\n"
-         "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n";
+         "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n"
+         "                  [--tokens FILE] [--tls-cert FILE --tls-key FILE [--tls-client-ca "
+         "FILE]]\n"
+         "                  [--insecure (serve a non-loopback --listen without --tokens)]\n"
+         "       rim_server --hash-token TOKEN|-   (SHA-256 for a --tokens line; '-': from stdin)\n"
+         "access control and TLS: docs/security.md\n";
 }
 
 std::string ServerConfig::ToString() const {
@@ -111,7 +129,12 @@ std::string ServerConfig::ToString() const {
     << "host_memory_budget_bytes = " << host_memory_budget_bytes << "\n"
     << "warmup_frames = " << warmup_frames << "\n"
     << "shutdown_deadline = " << shutdown_deadline_s << "\n"
-    << "train_slots = " << train_slots << "\n";
+    << "train_slots = " << train_slots << "\n"
+    << "tokens = " << tokens_file << "\n"
+    << "tls_cert = " << tls_cert << "\n"
+    << "tls_key = " << tls_key << "\n"
+    << "tls_client_ca = " << tls_client_ca << "\n"
+    << "insecure = " << (insecure ? "true" : "false") << "\n";
   return s.str();
 }
 
@@ -123,7 +146,9 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
       return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
     arg = arg.substr(2);
     const size_t eq = arg.find('=');
-    if (eq != std::string::npos) {
+    if (arg == "insecure") {  // the one flag without a value
+      flags.emplace_back(arg, "true");
+    } else if (eq != std::string::npos) {
       flags.emplace_back(arg.substr(0, eq), arg.substr(eq + 1));
     } else {
       if (i + 1 >= argc)
@@ -146,6 +171,10 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
   }
   if (config.data_dir.empty()) return absl::InvalidArgumentError("--data-dir is required");
   if (config.listen.empty()) return absl::InvalidArgumentError("--listen must not be empty");
+  if (config.tls_cert.empty() != config.tls_key.empty())
+    return absl::InvalidArgumentError("--tls-cert and --tls-key must be given together");
+  if (!config.tls_client_ca.empty() && config.tls_cert.empty())
+    return absl::InvalidArgumentError("--tls-client-ca needs --tls-cert and --tls-key");
   return config;
 }
 

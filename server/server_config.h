@@ -27,6 +27,12 @@ struct ServerConfig {
   int warmup_frames = 2;
   // SIGTERM: in-flight RPCs get this long to finish before they are cancelled.
   int shutdown_deadline_s = 10;
+  // Access control and transport security (docs/security.md).
+  std::string tokens_file;    // --tokens: `ROLE SUBJECT SHA256HEX` lines; empty: no tokens needed
+  std::string tls_cert;       // --tls-cert: PEM certificate chain; empty: plaintext
+  std::string tls_key;        // --tls-key: PEM private key of --tls-cert
+  std::string tls_client_ca;  // --tls-client-ca: require client certificates signed by it (mTLS)
+  bool insecure = false;      // --insecure: allow a non-loopback --listen without --tokens
   // Frames that may train at once across all sessions (ComputeScheduler); 0: one per two cores.
   int train_slots = 0;
 
@@ -34,9 +40,9 @@ struct ServerConfig {
   std::string ToString() const;
 };
 
-// Parses argv (flags as `--name value` or `--name=value`); a --config file is read first and the
-// flags override it. INVALID_ARGUMENT naming the flag for an unknown flag, a missing or bad value,
-// or a missing --data-dir.
+// Parses argv (flags as `--name value` or `--name=value`; --insecure alone means true); a --config
+// file is read first and the flags override it. INVALID_ARGUMENT naming the flag for an unknown
+// flag, a missing or bad value, a missing --data-dir, or TLS flags that do not go together.
 absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv);
 
 // Usage text for --help and errors.

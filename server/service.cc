@@ -19,7 +19,30 @@ grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const absl::Sta
   return reactor;
 }
 
+// Streams refused before they start (unauthenticated, or not allowed for the caller's role).
+template <typename Request, typename Response>
+class RefusedBidi : public grpc::ServerBidiReactor<Request, Response> {
+ public:
+  explicit RefusedBidi(const absl::Status& status) { this->Finish(ToGrpcStatus(status)); }
+  void OnDone() override { delete this; }
+};
+
+class RefusedTiles : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
+ public:
+  explicit RefusedTiles(const absl::Status& status) { Finish(ToGrpcStatus(status)); }
+  void OnDone() override { delete this; }
+};
+
+const Authorizer& OpenAuthorizer() {
+  static const Authorizer open;
+  return open;
+}
+
 }  // namespace
+
+RimService::RimService(SessionManager* sessions, const ServiceLimits& limits,
+                       const Authorizer* auth)
+    : sessions_(sessions), limits_(limits), auth_(auth != nullptr ? auth : &OpenAuthorizer()) {}
 
 void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
   const SessionStats stats = session.Stats();
@@ -45,6 +68,8 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
 grpc::ServerUnaryReactor* RimService::CreateSession(grpc::CallbackServerContext* ctx,
                                                     const rim::v1::CreateSessionRequest* request,
                                                     rim::v1::SessionInfo* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kCreateSession, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   std::vector<std::pair<std::string, std::string>> overrides;
   for (const auto& o : request->overrides()) overrides.emplace_back(o.key(), o.value());
   auto session = sessions_->Create(request->robot_id(), request->preset(), overrides);
@@ -56,6 +81,8 @@ grpc::ServerUnaryReactor* RimService::CreateSession(grpc::CallbackServerContext*
 grpc::ServerUnaryReactor* RimService::GetSession(grpc::CallbackServerContext* ctx,
                                                  const rim::v1::GetSessionRequest* request,
                                                  rim::v1::SessionInfo* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kGetSession, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   auto session = sessions_->Get(request->robot_id());
   if (!session.ok()) return Done(ctx, session.status());
   FillSessionInfo(**session, response);
@@ -65,6 +92,8 @@ grpc::ServerUnaryReactor* RimService::GetSession(grpc::CallbackServerContext* ct
 grpc::ServerUnaryReactor* RimService::ListSessions(grpc::CallbackServerContext* ctx,
                                                    const rim::v1::ListSessionsRequest* request,
                                                    rim::v1::ListSessionsResponse* response) {
+  if (auto principal = auth_->Authorize(*ctx, Rpc::kListSessions); !principal.ok())
+    return Done(ctx, principal.status());
   for (const auto& session : sessions_->List()) FillSessionInfo(*session, response->add_sessions());
   return Done(ctx, absl::OkStatus());
 }
@@ -72,6 +101,8 @@ grpc::ServerUnaryReactor* RimService::ListSessions(grpc::CallbackServerContext* 
 grpc::ServerUnaryReactor* RimService::CloseSession(grpc::CallbackServerContext* ctx,
                                                    const rim::v1::CloseSessionRequest* request,
                                                    rim::v1::CloseSessionResponse* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kCloseSession, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   // Drains the session's queue on this handler thread; training itself stays on the trainer.
   return Done(ctx, sessions_->Close(request->robot_id(), request->save()));
 }
@@ -79,6 +110,8 @@ grpc::ServerUnaryReactor* RimService::CloseSession(grpc::CallbackServerContext* 
 grpc::ServerUnaryReactor* RimService::SaveSession(grpc::CallbackServerContext* ctx,
                                                   const rim::v1::SaveSessionRequest* request,
                                                   rim::v1::SaveSessionResponse* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kSaveSession, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   auto session = sessions_->Get(request->robot_id());
   if (!session.ok()) return Done(ctx, session.status());
   const uint64_t version = (*session)->mapper().map_version();
@@ -92,6 +125,8 @@ grpc::ServerUnaryReactor* RimService::SaveSession(grpc::CallbackServerContext* c
 grpc::ServerUnaryReactor* RimService::LoadSession(grpc::CallbackServerContext* ctx,
                                                   const rim::v1::LoadSessionRequest* request,
                                                   rim::v1::SessionInfo* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kLoadSession, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   auto session = sessions_->Load(request->robot_id());
   if (!session.ok()) return Done(ctx, session.status());
   FillSessionInfo(**session, response);
@@ -100,7 +135,9 @@ grpc::ServerUnaryReactor* RimService::LoadSession(grpc::CallbackServerContext* c
 
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScans(
     grpc::CallbackServerContext* ctx) {
-  return NewScanStreamReactor(sessions_, limits_);
+  auto principal = auth_->Authorize(*ctx, Rpc::kStreamScans);
+  if (!principal.ok()) return new RefusedBidi<rim::v1::Scan, rim::v1::ScanAck>(principal.status());
+  return NewScanStreamReactor(sessions_, limits_, *principal);
 }
 
 absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
@@ -135,27 +172,38 @@ absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& li
 grpc::ServerUnaryReactor* RimService::QuerySdf(grpc::CallbackServerContext* ctx,
                                                const rim::v1::QuerySdfRequest* request,
                                                rim::v1::QuerySdfResponse* response) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kQuerySdf, request->robot_id()); !s.ok())
+    return Done(ctx, s);
   return Done(ctx, AnswerQuery(*sessions_, limits_, *request, response));
 }
 
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>*
 RimService::StreamQuerySdf(grpc::CallbackServerContext* ctx) {
-  return NewQueryStreamReactor(sessions_, limits_);
+  auto principal = auth_->Authorize(*ctx, Rpc::kStreamQuerySdf);
+  if (!principal.ok())
+    return new RefusedBidi<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>(principal.status());
+  return NewQueryStreamReactor(sessions_, limits_, *principal);
 }
 
 grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::GetMeshTiles(
     grpc::CallbackServerContext* ctx, const rim::v1::GetMeshTilesRequest* request) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kGetMeshTiles, request->robot_id()); !s.ok())
+    return new RefusedTiles(s);
   return NewMeshTilesReactor(sessions_, *request);
 }
 
 grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::WatchMeshTiles(
     grpc::CallbackServerContext* ctx, const rim::v1::WatchMeshTilesRequest* request) {
+  if (absl::Status s = auth_->Authorize(*ctx, Rpc::kWatchMeshTiles, request->robot_id()); !s.ok())
+    return new RefusedTiles(s);
   return NewWatchReactor(sessions_, *request);
 }
 
 grpc::ServerUnaryReactor* RimService::GetServerInfo(grpc::CallbackServerContext* ctx,
                                                     const rim::v1::GetServerInfoRequest* request,
                                                     rim::v1::ServerInfo* response) {
+  if (auto principal = auth_->Authorize(*ctx, Rpc::kGetServerInfo); !principal.ok())
+    return Done(ctx, principal.status());
   response->set_version(kRimVersion);
   response->set_build("cpu");
   response->set_device("cpu");

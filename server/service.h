@@ -7,6 +7,7 @@
 #include <string>
 
 #include "rim/v1/rim.grpc.pb.h"
+#include "server/auth.h"
 #include "server/session_manager.h"
 
 namespace rim::server {
@@ -21,8 +22,9 @@ struct ServiceLimits {
 
 class RimService final : public rim::v1::Rim::CallbackService {
  public:
-  RimService(SessionManager* sessions, const ServiceLimits& limits)
-      : sessions_(sessions), limits_(limits) {}
+  // `auth` (not owned) authorizes every call first; nullptr: open, every call allowed.
+  RimService(SessionManager* sessions, const ServiceLimits& limits,
+             const Authorizer* auth = nullptr);
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* ctx,
                                           const rim::v1::CreateSessionRequest* request,
@@ -60,20 +62,24 @@ class RimService final : public rim::v1::Rim::CallbackService {
  private:
   SessionManager* sessions_;
   const ServiceLimits limits_;
+  const Authorizer* auth_;
 };
 
 // Fills `info` from the session's counters and its mapper's statistics.
 void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
 
 // The StreamScans reactor (service_stream.cc) and the GetMeshTiles reactor (service_mesh.cc).
+// Stream reactors check each message's robot id against `principal` (CheckRobot): a scan for
+// another robot is REJECTED with PERMISSION_DENIED and the stream goes on; a query for another
+// robot ends the query stream with PERMISSION_DENIED.
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal);
 // One query (unary, or one message of a query stream): points limited to max_query_points.
 absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
                          const rim::v1::QuerySdfRequest& request,
                          rim::v1::QuerySdfResponse* response);
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewWatchReactor(
     SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewMeshTilesReactor(

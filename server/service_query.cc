@@ -1,6 +1,7 @@
 // StreamQuerySdf: batches beyond the unary limit, sent as a stream of requests, each answered in
 // order by one response. A bad message ends the stream with its status (INVALID_ARGUMENT naming
-// the field, NOT_FOUND for an unknown session); the answers already sent stand.
+// the field, NOT_FOUND for an unknown session, PERMISSION_DENIED for another robot's session); the
+// answers already sent stand.
 #include "server/service.h"
 #include "server/status_mapping.h"
 
@@ -10,8 +11,9 @@ namespace {
 class QueryStreamReactor
     : public grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse> {
  public:
-  QueryStreamReactor(SessionManager* sessions, const ServiceLimits& limits)
-      : sessions_(sessions), limits_(limits) {
+  QueryStreamReactor(SessionManager* sessions, const ServiceLimits& limits,
+                     const Principal& principal)
+      : sessions_(sessions), limits_(limits), principal_(principal) {
     StartRead(&request_);
   }
 
@@ -21,7 +23,8 @@ class QueryStreamReactor
       return;
     }
     response_.Clear();
-    const absl::Status s = AnswerQuery(*sessions_, limits_, request_, &response_);
+    absl::Status s = CheckRobot(principal_, request_.robot_id());
+    if (s.ok()) s = AnswerQuery(*sessions_, limits_, request_, &response_);
     if (!s.ok()) {
       Finish(ToGrpcStatus(s));
       return;
@@ -42,6 +45,7 @@ class QueryStreamReactor
  private:
   SessionManager* sessions_;
   const ServiceLimits limits_;
+  const Principal principal_;
   rim::v1::QuerySdfRequest request_;
   rim::v1::QuerySdfResponse response_;
 };
@@ -49,8 +53,8 @@ class QueryStreamReactor
 }  // namespace
 
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits) {
-  return new QueryStreamReactor(sessions, limits);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal) {
+  return new QueryStreamReactor(sessions, limits, principal);
 }
 
 }  // namespace rim::server

@@ -2,7 +2,8 @@
 // queue stops reading until Session::OnSpace fires (backpressure through gRPC flow control). Acks
 // go out one write at a time from a queue: ACCEPTED (or REJECTED) from the reading side, and
 // INTEGRATED from the trainer thread. The stream finishes once the client has half-closed and every
-// accepted scan's INTEGRATED ack is written.
+// accepted scan's INTEGRATED ack is written. A scan for a robot the caller's token may not act on
+// is REJECTED with PERMISSION_DENIED, like any bad scan, and the stream goes on.
 //
 // Threading: all state is guarded by Shared::mu. Callbacks from the trainer thread hold only a
 // shared_ptr<Shared> and reach the reactor through Shared::reactor, which OnDone clears under the
@@ -29,8 +30,12 @@ struct Shared {
 
 class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck> {
  public:
-  ScanStreamReactor(SessionManager* sessions, const ServiceLimits& limits)
-      : sessions_(sessions), limits_(limits), shared_(std::make_shared<Shared>()) {
+  ScanStreamReactor(SessionManager* sessions, const ServiceLimits& limits,
+                    const Principal& principal)
+      : sessions_(sessions),
+        limits_(limits),
+        principal_(principal),
+        shared_(std::make_shared<Shared>()) {
     shared_->reactor = this;
     std::lock_guard<std::mutex> lock(shared_->mu);
     StartRead(&in_);
@@ -115,6 +120,26 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
 
   void HandleScan() {
     const uint64_t sequence = in_.sequence();
+    if (sessions_->stopping()) {
+      // SIGTERM: this scan is not accepted, nothing more is read, and the stream ends once the
+      // scans accepted before have their INTEGRATED acks, so the server can stop promptly.
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      const absl::Status stopping = absl::UnavailableError(
+          "rim_server is shutting down: scan not accepted; send it again once the server is back");
+      RejectLocked(sequence, stopping);
+      half_closed_ = true;
+      end_status_ = ToGrpcStatus(stopping);
+      MaybeFinishLocked();
+      return;
+    }
+    // Before the lookup, so that the rejection does not tell whether the session exists.
+    const absl::Status allowed = CheckRobot(principal_, in_.robot_id());
+    if (!allowed.ok()) {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      RejectLocked(sequence, allowed);
+      ReadNextLocked();
+      return;
+    }
     auto session = sessions_->Get(in_.robot_id());
     if (!session.ok()) {
       std::lock_guard<std::mutex> lock(shared_->mu);
@@ -225,12 +250,13 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     }
     if (half_closed_ && !pending_ && awaiting_integration_ == 0 && queue_.empty() && !writing_) {
       finished_ = true;
-      Finish(grpc::Status::OK);
+      Finish(end_status_);
     }
   }
 
   SessionManager* const sessions_;
   const ServiceLimits limits_;
+  const Principal principal_;
   const std::shared_ptr<Shared> shared_;
 
   rim::v1::Scan in_;  // the read buffer; only the reading side touches it
@@ -242,14 +268,15 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
   bool half_closed_ = false;
   bool cancelled_ = false;
   bool finished_ = false;
+  grpc::Status end_status_;  // OK, or why the server ended the stream itself
   uint64_t awaiting_integration_ = 0;
 };
 
 }  // namespace
 
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits) {
-  return new ScanStreamReactor(sessions, limits);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal) {
+  return new ScanStreamReactor(sessions, limits, principal);
 }
 
 }  // namespace rim::server

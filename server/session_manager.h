@@ -4,6 +4,7 @@
 // so closing one never pulls it from under an in-flight RPC.
 #pragma once
 
+#include <atomic>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -67,6 +68,10 @@ class SessionManager {
   // RESOURCE_EXHAUSTED naming the budget when the sessions hold more than it (OK without one).
   absl::Status CheckHostMemoryBudget() const;
 
+  // Shutdown has begun (SIGTERM): streams stop accepting scans and end.
+  void BeginShutdown() { stopping_ = true; }
+  bool stopping() const { return stopping_; }
+
   const SessionManagerOptions& options() const { return options_; }
 
  private:
@@ -85,6 +90,7 @@ class SessionManager {
       const std::string& dir);
 
   const SessionManagerOptions options_;
+  std::atomic<bool> stopping_{false};
   mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<Session>> sessions_;
   // Ids being created or loaded (outside the lock), counted against the limit.

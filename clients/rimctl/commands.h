@@ -33,7 +33,8 @@ const std::vector<FlagSpec>& GlobalFlags();
 std::vector<FlagSpec> WithGlobalFlags(std::vector<FlagSpec> specs);
 
 // Connects as the global flags say: --server (default $RIM_SERVER, else 127.0.0.1:50051),
-// --token (default $RIM_TOKEN), --timeout and --connect-timeout in seconds.
+// --token (default $RIM_TOKEN), --timeout and --connect-timeout in seconds, and TLS from --tls-ca,
+// --tls-cert and --tls-key.
 absl::StatusOr<Client> ConnectFromArgs(const Args& args);
 
 // Prints "rimctl: <message>" and returns kExitUnreachable for UNAVAILABLE, else kExitFailed.

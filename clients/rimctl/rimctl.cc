@@ -30,6 +30,10 @@ global flags (anywhere on the line):
   --token T               bearer token sent with every call (default $RIM_TOKEN)
   --timeout S             deadline of each call in seconds (default 30)
   --connect-timeout S     how long to wait for the server to answer at all (default 10)
+  --tls-ca FILE           use TLS, trusting the server certificates FILE signs (PEM)
+  --tls-cert FILE --tls-key FILE
+                          use TLS with this client certificate and key (servers with
+                          --tls-client-ca); without --tls-ca the system roots are trusted
 
 'rimctl COMMAND --help' describes a command. Exit codes: 0 ok, 1 failed, 2 bad command line,
 3 server unreachable, 4 stream had rejected scans, 5 health not SERVING.
@@ -38,10 +42,11 @@ global flags (anywhere on the line):
 }  // namespace
 
 const std::vector<FlagSpec>& GlobalFlags() {
-  static const std::vector<FlagSpec> flags = {{"server", FlagKind::kValue},
-                                              {"token", FlagKind::kValue},
-                                              {"timeout", FlagKind::kValue},
-                                              {"connect-timeout", FlagKind::kValue}};
+  static const std::vector<FlagSpec> flags = {
+      {"server", FlagKind::kValue},  {"token", FlagKind::kValue},
+      {"timeout", FlagKind::kValue}, {"connect-timeout", FlagKind::kValue},
+      {"tls-ca", FlagKind::kValue},  {"tls-cert", FlagKind::kValue},
+      {"tls-key", FlagKind::kValue}};
   return flags;
 }
 
@@ -57,6 +62,11 @@ absl::StatusOr<Client> ConnectFromArgs(const Args& args) {
       args.Get("server", env_server && *env_server ? env_server : "127.0.0.1:50051");
   ClientOptions options;
   options.token = args.Get("token", env_token ? env_token : "");
+  options.tls_ca_file = args.Get("tls-ca");
+  options.tls_cert_file = args.Get("tls-cert");
+  options.tls_key_file = args.Get("tls-key");
+  if (options.tls_cert_file.empty() != options.tls_key_file.empty())
+    return absl::InvalidArgumentError("--tls-cert and --tls-key must be given together");
   auto timeout = args.GetDouble("timeout", 30, 0.001, 1e6);
   if (!timeout.ok()) return timeout.status();
   auto connect_timeout = args.GetDouble("connect-timeout", 10, 0.001, 1e6);

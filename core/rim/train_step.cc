@@ -12,11 +12,12 @@
 namespace rim {
 namespace {
 
-// libtorch's matrix products go through libblas.so.3. When that is OpenBLAS (Debian's
-// libopenblas0-pthread, installed by deploy/install-deps.sh), its own thread pool would fight
-// libtorch's threads for the cores over matrices this small: measured on 2 cores, one BLAS thread
-// makes forward and backward faster and removes ~40 % of system time. OPENBLAS_NUM_THREADS, when
-// set, wins. OpenBLAS reads its environment when loaded, before main, hence the call.
+// libtorch's matrix products go through libblas.so.3. Where an administrator made that OpenBLAS
+// (Debian's alternatives), its own thread pool would fight libtorch's threads for the cores over
+// matrices this small: measured on 2 cores, one BLAS thread makes forward and backward faster and
+// removes ~40 % of system time. OPENBLAS_NUM_THREADS, when set, wins. OpenBLAS reads its
+// environment when loaded, before main, hence the call. (deploy/install-deps.sh does not install
+// OpenBLAS: with it, prometheus-cpp's HTTP exposer fails to start; BENCHMARK.md.)
 const bool kBlasThreadsSet = [] {
   if (std::getenv("OPENBLAS_NUM_THREADS") != nullptr) return false;
   using SetThreads = void (*)(int);

@@ -2,6 +2,9 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <fstream>
+#include <sstream>
+
 #include "absl/strings/str_cat.h"
 #include "client/connection.h"
 #include "client/status.h"
@@ -51,6 +54,38 @@ absl::StatusOr<rim::v1::ServerInfo> Connection::CachedInfo() {
 
 namespace {
 
+absl::StatusOr<std::string> ReadFile(const std::string& what, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat(what, ": cannot read ", path));
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// Plaintext unless a TLS option is set; then TLS, with a client certificate when one is given.
+absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> ChannelCredentials(
+    const ClientOptions& options) {
+  if (options.tls_ca_file.empty() && options.tls_cert_file.empty() && options.tls_key_file.empty())
+    return grpc::InsecureChannelCredentials();
+  if (options.tls_cert_file.empty() != options.tls_key_file.empty())
+    return absl::InvalidArgumentError("tls_cert_file and tls_key_file must be given together");
+  grpc::SslCredentialsOptions ssl;
+  if (!options.tls_ca_file.empty()) {
+    auto ca = ReadFile("tls_ca_file", options.tls_ca_file);
+    if (!ca.ok()) return ca.status();
+    ssl.pem_root_certs = *ca;
+  }
+  if (!options.tls_cert_file.empty()) {
+    auto cert = ReadFile("tls_cert_file", options.tls_cert_file);
+    if (!cert.ok()) return cert.status();
+    auto key = ReadFile("tls_key_file", options.tls_key_file);
+    if (!key.ok()) return key.status();
+    ssl.pem_cert_chain = *cert;
+    ssl.pem_private_key = *key;
+  }
+  return grpc::SslCredentials(ssl);
+}
+
 // Runs one unary call with the connection's metadata and deadline and converts its status.
 template <typename Request, typename Response, typename Method>
 absl::StatusOr<Response> Unary(client_internal::Connection& c, Method method,
@@ -89,12 +124,17 @@ absl::StatusOr<Client> Client::Connect(const std::string& address, ClientOptions
   // default. The server enforces its own limits; this only has to not be the smaller one.
   args.SetMaxReceiveMessageSize(256 << 20);
   args.SetMaxSendMessageSize(256 << 20);
-  auto channel = grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+  auto credentials = ChannelCredentials(options);
+  if (!credentials.ok()) return credentials.status();
+  auto channel = grpc::CreateCustomChannel(address, *credentials, args);
   if (!channel->WaitForConnected(std::chrono::system_clock::now() + options.connect_timeout)) {
-    return absl::UnavailableError(absl::StrCat("cannot reach rim_server at ", address,
-                                               ": no connection within ",
-                                               options.connect_timeout.count() / 1000.0,
-                                               " s (is the server running and listening there?)"));
+    const bool tls = !options.tls_ca_file.empty() || !options.tls_cert_file.empty();
+    return absl::UnavailableError(absl::StrCat(
+        "cannot reach rim_server at ", address, ": no connection within ",
+        options.connect_timeout.count() / 1000.0, " s (is the server running and listening there? ",
+        tls ? "TLS: is its certificate signed by the CA given, for this host name, and does it "
+              "want a client certificate?)"
+            : "does it want TLS?)"));
   }
   return Client(std::make_shared<client_internal::Connection>(address, std::move(options),
                                                               std::move(channel)));

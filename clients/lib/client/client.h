@@ -45,6 +45,12 @@ struct ClientOptions {
   std::chrono::milliseconds mesh_deadline{300'000};
   // How long Connect waits for the channel to come up.
   std::chrono::milliseconds connect_timeout{10'000};
+  // TLS (docs/security.md): on when any of these is set. tls_ca_file: PEM certificates that sign
+  // the server's (empty: the system's roots). tls_cert_file and tls_key_file, together: this
+  // client's certificate and key, for a server that requires client certificates (mTLS).
+  std::string tls_ca_file;
+  std::string tls_cert_file;
+  std::string tls_key_file;
 };
 
 // Health of the server (or of one service) as the standard grpc.health.v1 check reports it.
@@ -152,7 +158,8 @@ class SessionHandle {
 class Client {
  public:
   // Opens a channel to `address` (host:port) and waits up to options.connect_timeout for it.
-  // UNAVAILABLE "cannot reach rim_server at ADDR: ..." when it does not come up.
+  // UNAVAILABLE "cannot reach rim_server at ADDR: ..." when it does not come up (a failed TLS
+  // handshake looks the same); NOT_FOUND or INVALID_ARGUMENT for unreadable or unpaired TLS files.
   static absl::StatusOr<Client> Connect(const std::string& address, ClientOptions options = {});
 
   const std::string& address() const;

@@ -40,7 +40,9 @@ class Client:
 
     def __init__(self, address: str, token: Optional[str] = None,
                  timeout: Optional[float] = 30.0,
-                 credentials: Optional[grpc.ChannelCredentials] = None) -> None:
+                 credentials: Optional[grpc.ChannelCredentials] = None,
+                 tls_ca: Optional[str] = None, tls_cert: Optional[str] = None,
+                 tls_key: Optional[str] = None) -> None:
         """Opens a channel (connecting lazily, on the first call).
 
         Args:
@@ -48,8 +50,15 @@ class Client:
             token: sent as "authorization: Bearer <token>" on every call when given.
             timeout: deadline in seconds of unary calls and query streams; None waits forever.
                 Scan streams and tile watches take their own timeout (default: none).
-            credentials: TLS channel credentials; None for a plaintext channel.
+            credentials: TLS channel credentials; None for a plaintext channel (unless a tls_*
+                file is given).
+            tls_ca: PEM file of the CA that signs the server's certificate; turns TLS on (with
+                tls_cert and tls_key but no tls_ca, the system roots are trusted).
+            tls_cert, tls_key: PEM files of this client's certificate and key, together, for a
+                server that requires client certificates (rim_server --tls-client-ca).
         """
+        if credentials is None and (tls_ca or tls_cert or tls_key):
+            credentials = _tls_credentials(tls_ca, tls_cert, tls_key)
         options = [("grpc.max_send_message_length", _MAX_MESSAGE_BYTES),
                    ("grpc.max_receive_message_length", _MAX_MESSAGE_BYTES)]
         if credentials is None:
@@ -152,6 +161,25 @@ class Client:
             return method(request, timeout=self.timeout, metadata=self._metadata(robot_id))
         except grpc.RpcError as error:
             raise RimError.from_rpc(error) from None
+
+
+def _read_pem(what: str, path: Optional[str]) -> Optional[bytes]:
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError as error:
+        raise RimError("NOT_FOUND", f"{what}: cannot read {path}: {error.strerror}") from None
+
+
+def _tls_credentials(tls_ca: Optional[str], tls_cert: Optional[str],
+                     tls_key: Optional[str]) -> grpc.ChannelCredentials:
+    if (tls_cert is None) != (tls_key is None):
+        raise invalid_argument("tls_cert and tls_key must be given together")
+    return grpc.ssl_channel_credentials(root_certificates=_read_pem("tls_ca", tls_ca),
+                                        private_key=_read_pem("tls_key", tls_key),
+                                        certificate_chain=_read_pem("tls_cert", tls_cert))
 
 
 def _check_robot_id(robot_id: Any) -> str:
