@@ -71,7 +71,10 @@ class ServerCityTest : public ::testing::Test {
     ASSERT_TRUE(client.ok()) << client.status();
     client_ = new Client(std::move(*client));
     for (const Robot& robot : *robots_) {
-      auto created = client_->CreateSession(robot.id, "maicity", {{"train.iterations", "15"}});
+      // The decoder freezes after 8 frames (instead of 20), so that later frames change only the
+      // tiles near the robot (while the shared decoder trains, every tile changes).
+      auto created = client_->CreateSession(
+          robot.id, "maicity", {{"train.iterations", "15"}, {"decoder.freeze_after_frames", "8"}});
       ASSERT_TRUE(created.ok()) << created.status();
     }
     // Both robots stream at once, each on its own StreamScans call.
@@ -224,6 +227,35 @@ TEST_F(ServerCityTest, QueriesReadZeroOnSurfacesPositiveInSeenSpaceAndUnobserved
     ASSERT_TRUE(far.ok()) << far.status();
     for (size_t i = 0; i < unseen.size(); ++i) EXPECT_EQ(far->observed[i], 0) << i;
   }
+}
+
+TEST_F(ServerCityTest, SinceVersionReturnsOnlyTheTilesThatChanged) {
+  const Robot& east = (*robots_)[0];
+  SessionHandle session = client_->Session(east.id);
+  auto before = session.MeshTiles(0);
+  ASSERT_TRUE(before.ok()) << before.status();
+  auto info = client_->GetSession(east.id);
+  ASSERT_TRUE(info.ok());
+  ASSERT_TRUE(info->decoder_frozen());
+  const uint64_t v = info->map_version();
+  // Two more frames at the end of the stretch: only the sub-maps around the robot move.
+  std::vector<PosedScan> more(east.scans.end() - 2, east.scans.end());
+  StreamOptions options;
+  options.first_sequence = kFramesPerRobot;
+  auto streamed = session.Stream(more, options);
+  ASSERT_TRUE(streamed.ok()) << streamed.status();
+  auto changed = session.MeshTiles(v);
+  ASSERT_TRUE(changed.ok()) << changed.status();
+  auto after = session.MeshTiles(0);
+  ASSERT_TRUE(after.ok());
+  std::printf("%s: %zu of %zu tiles changed after version %llu\n", east.id.c_str(), changed->size(),
+              after->size(), static_cast<unsigned long long>(v));
+  ASSERT_FALSE(changed->empty());
+  EXPECT_LT(changed->size(), after->size());
+  size_t newer = 0;
+  for (const DecodedTile& t : *after) newer += t.version > v;
+  EXPECT_EQ(newer, changed->size());  // exactly the tiles newer than v, no more
+  for (const DecodedTile& t : *changed) EXPECT_GT(t.version, v);
 }
 
 }  // namespace

@@ -6,8 +6,10 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <string>
@@ -25,6 +27,7 @@ namespace rim {
 namespace {
 
 using ::testing::HasSubstr;
+using namespace std::chrono_literals;
 using testing_support::ServerProcess;
 using testing_support::ServerProcessOptions;
 
@@ -338,6 +341,54 @@ TEST(ServerWarmupTest, HealthIsNotServingUntilWarmedUp) {
   EXPECT_EQ(status, ServingStatus::kServing);
   EXPECT_THAT((*server)->Log(), HasSubstr("warmed up in"));
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+TEST(ServerShutdownTest, SigtermMidStreamEndsTheStreamSavesEveryAcceptedScanAndExitsZero) {
+  auto server = ServerProcess::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  const std::string data_dir = (*server)->data_dir();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  ASSERT_TRUE(client->CreateSession("leaving", "maicity", kSmallMap).ok());
+  std::vector<PosedScan> frames;
+  for (int i = 0; i < 200; ++i) frames.push_back(GroundScan(0.02 * i));
+  std::atomic<int> accepted{0}, integrated{0};
+  StreamOptions options;
+  options.rate_hz = 20;  // a robot at 20 Hz: the stream is still going when SIGTERM comes
+  options.on_ack = [&](const rim::v1::ScanAck& ack) {
+    if (ack.state() == rim::v1::ScanAck::ACCEPTED) ++accepted;
+    if (ack.state() == rim::v1::ScanAck::INTEGRATED) ++integrated;
+  };
+  absl::Status stream_status;
+  std::thread robot([&] {
+    auto summary = client->Session("leaving").Stream(frames, options);
+    stream_status = summary.status();
+  });
+  for (int i = 0; i < 600 && integrated < 5; ++i) std::this_thread::sleep_for(50ms);
+  ASSERT_GE(integrated.load(), 5);
+  const auto start = std::chrono::steady_clock::now();
+  auto code = (*server)->Stop(std::chrono::seconds(30));
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  robot.join();  // the stream ended: it does not hang on a server that went away
+  ASSERT_TRUE(code.ok()) << code.status();
+  EXPECT_EQ(*code, 0);
+  EXPECT_LT(seconds, 10.0 + 5.0) << "past the 10 s shutdown deadline";
+  EXPECT_LT(accepted.load(), 200);
+  std::printf("SIGTERM after %d accepted scans: exit 0 in %.2f s; stream ended with: %s\n",
+              accepted.load(), seconds, stream_status.ToString().c_str());
+
+  // Restart on the same data dir: the saved session has every accepted scan.
+  ServerProcessOptions again;
+  again.data_dir = data_dir;
+  auto restarted = ServerProcess::Start(again);
+  ASSERT_TRUE(restarted.ok()) << restarted.status();
+  auto client2 = Client::Connect((*restarted)->address());
+  ASSERT_TRUE(client2.ok());
+  auto loaded = client2->LoadSession("leaving");
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ(loaded->integrated_frames(), uint64_t(accepted.load()));
+  EXPECT_EQ((*restarted)->Stop().value_or(-1), 0);
 }
 
 }  // namespace
