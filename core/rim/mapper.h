@@ -51,8 +51,8 @@ struct StageTimings {
 };
 
 struct QueryResult {
-  std::vector<float> sdf;         // metres; see `observed`
-  std::vector<float> gradient;    // 3 per point, when asked
+  std::vector<float> sdf;       // metres; see `observed`
+  std::vector<float> gradient;  // 3 per point, when asked
   // Per point, how the finest voxel at the point was observed: 0 never (the sdf is the network's
   // extrapolation), else kObservedSurface (training samples near a surface fell in it, what the
   // mesh covers) and/or kObservedFree (a ray crossed it in front of its endpoint). The service

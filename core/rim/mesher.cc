@@ -81,7 +81,8 @@ absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, 
         for (int y = lo.y(); y <= hi.y(); ++y)
           for (int z = lo.z(); z <= hi.z(); ++z) {
             const Int3 v(x, y, z);
-            if (observed_voxels.count(v) || (reader.ObservedBits(v) & LocalMap::kObserved)) return true;
+            if (observed_voxels.count(v) || (reader.ObservedBits(v) & LocalMap::kObserved))
+              return true;
           }
       return false;
     };

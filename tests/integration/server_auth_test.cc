@@ -17,6 +17,7 @@
 #include "rim/v1/rim.grpc.pb.h"
 #include "server/auth.h"
 #include "support/server_process.h"
+#include "support/small_session.h"
 #include "support/subprocess.h"
 #include "support/temp_dir.h"
 
@@ -24,6 +25,7 @@ namespace rim {
 namespace {
 
 using ::testing::HasSubstr;
+using testing_support::GroundScan;
 using testing_support::ServerProcess;
 
 constexpr char kAdmin[] = "admin-6d1f0c2e";
@@ -32,24 +34,8 @@ constexpr char kRobot1[] = "robot1-0f5e2a9b";
 constexpr char kRobot2[] = "robot2-c41d8e60";
 constexpr char kRobot3[] = "robot3-7a2b19fe";  // its session is not made up front
 
-const std::vector<std::pair<std::string, std::string>> kSmallMap = {
-    {"grid.half_extent_x_m", "2"},
-    {"grid.half_extent_y_m", "2"},
-    {"grid.z_min_m", "-1.2"},
-    {"grid.z_max_m", "1.2"},
-    {"train.iterations", "5"},
-    {"train.min_iterations", "5"},
-    {"sampler.rays_per_iteration", "512"}};
-
-PosedScan GroundScan(double x) {
-  PosedScan scan;
-  scan.T_world_sensor = Eigen::Isometry3d::Identity();
-  scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
-  for (int i = 0; i < 30; ++i)
-    for (int j = 0; j < 30; ++j)
-      scan.points_S.emplace_back(-1.5f + 0.1f * i, -1.5f + 0.1f * j, -1.f);
-  return scan;
-}
+const std::vector<std::pair<std::string, std::string>> kSmallMap =
+    testing_support::SmallMapOverrides();
 
 absl::StatusCode Code(const absl::Status& s) { return s.code(); }
 template <typename T>

@@ -19,6 +19,7 @@
 #include "gmock/gmock.h"
 #include "rim/v1/rim.grpc.pb.h"
 #include "support/server_process.h"
+#include "support/small_session.h"
 #include "support/temp_dir.h"
 
 namespace rim {
@@ -26,31 +27,15 @@ namespace {
 
 using ::testing::AnyOf;
 using ::testing::HasSubstr;
+using testing_support::GroundScan;
+using testing_support::GroundScans;
 using testing_support::ServerProcess;
 using testing_support::ServerProcessOptions;
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-const std::vector<std::pair<std::string, std::string>> kSmallMap = {
-    {"grid.half_extent_x_m", "2"}, {"grid.half_extent_y_m", "2"},
-    {"grid.z_min_m", "-1.2"},      {"grid.z_max_m", "1.2"},
-    {"train.iterations", "5"},     {"sampler.rays_per_iteration", "512"}};
-
-PosedScan GroundScan(double x) {
-  PosedScan scan;
-  scan.T_world_sensor = Eigen::Isometry3d::Identity();
-  scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
-  for (int i = 0; i < 40; ++i)
-    for (int j = 0; j < 40; ++j)
-      scan.points_S.emplace_back(-1.5f + 0.075f * i, -1.5f + 0.075f * j, -1.f);
-  return scan;
-}
-
-std::vector<PosedScan> GroundScans(int n) {
-  std::vector<PosedScan> out;
-  for (int i = 0; i < n; ++i) out.push_back(GroundScan(0.05 * i));
-  return out;
-}
+const std::vector<std::pair<std::string, std::string>> kSmallMap =
+    testing_support::SmallMapOverrides();
 
 // Waits until the session has integrated every accepted scan; returns its info.
 rim::v1::SessionInfo WaitSettled(const Client& client, const std::string& robot) {

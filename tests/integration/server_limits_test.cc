@@ -22,37 +22,22 @@
 #include "rim/v1/rim.grpc.pb.h"
 #include "support/analytic_scene.h"
 #include "support/server_process.h"
+#include "support/small_session.h"
 
 namespace rim {
 namespace {
 
 using ::testing::HasSubstr;
 using namespace std::chrono_literals;
+using testing_support::GroundScan;
 using testing_support::ServerProcess;
 using testing_support::ServerProcessOptions;
 
 constexpr int kMaxPointsPerScan = 20000;
 constexpr int kMaxQueryPoints = 1000;
 
-const std::vector<std::pair<std::string, std::string>> kSmallMap = {
-    {"grid.half_extent_x_m", "2"},
-    {"grid.half_extent_y_m", "2"},
-    {"grid.z_min_m", "-1.2"},
-    {"grid.z_max_m", "1.2"},
-    {"train.iterations", "5"},
-    {"train.min_iterations", "5"},
-    {"sampler.rays_per_iteration", "512"}};
-
-// A valid LiDAR scan of a ground plane 1 m below the sensor.
-PosedScan GroundScan(double x) {
-  PosedScan scan;
-  scan.T_world_sensor = Eigen::Isometry3d::Identity();
-  scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
-  for (int i = 0; i < 40; ++i)
-    for (int j = 0; j < 40; ++j)
-      scan.points_S.emplace_back(-1.5f + 0.075f * i, -1.5f + 0.075f * j, -1.f);
-  return scan;
-}
+const std::vector<std::pair<std::string, std::string>> kSmallMap =
+    testing_support::SmallMapOverrides();
 
 // A depth camera looking straight down at the same ground, 1 m below: every pixel reads 1 m.
 rim::v1::Scan DepthScan(const std::string& robot, uint32_t width, uint32_t height) {
