@@ -1,0 +1,223 @@
+// rim_load: a bounded load generator for a rim_server on this machine (loopback only).
+//
+// N robots stream 64-beam synthetic-city scans at a fixed rate, M planners send query batches
+// back to back, K dashboards watch mesh tiles, all for a fixed duration. At the end it prints what
+// the server sustained: frames integrated per robot, the lowest iterations per frame and the
+// largest lag the acks reported, query latency quantiles, tiles received, and the sessions' host
+// memory. The server is expected to degrade by design (fewer iterations, then backpressure), never
+// to fail or drop an accepted scan: the exit status is non-zero if any scan was rejected, any RPC
+// failed, or a session's integrated count differs from its accepted count.
+//
+// Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
+//                 [--rate 10] [--duration 60] [--batch 10000] [--frames 40]
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <mutex>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/client.h"
+#include "client/wire.h"
+#include "sim/city_frames.h"
+
+namespace {
+
+struct Options {
+  std::string server;
+  int robots = 2, planners = 2, dashboards = 1, batch = 10000, frames = 40;
+  double rate_hz = 10, duration_s = 60;
+};
+
+bool Loopback(const std::string& address) {
+  return address.rfind("127.", 0) == 0 || address.rfind("localhost:", 0) == 0 ||
+         address.rfind("[::1]:", 0) == 0;
+}
+
+bool Parse(int argc, char** argv, Options* o) {
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--server")
+      o->server = v;
+    else if (k == "--robots")
+      o->robots = std::atoi(v.c_str());
+    else if (k == "--planners")
+      o->planners = std::atoi(v.c_str());
+    else if (k == "--dashboards")
+      o->dashboards = std::atoi(v.c_str());
+    else if (k == "--rate")
+      o->rate_hz = std::atof(v.c_str());
+    else if (k == "--duration")
+      o->duration_s = std::atof(v.c_str());
+    else if (k == "--batch")
+      o->batch = std::atoi(v.c_str());
+    else if (k == "--frames")
+      o->frames = std::atoi(v.c_str());
+    else
+      return false;
+  }
+  return (argc % 2) == 1 && !o->server.empty() && o->robots >= 0 && o->robots <= 16 &&
+         o->planners >= 0 && o->planners <= 16 && o->dashboards >= 0 && o->dashboards <= 16 &&
+         o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
+         o->batch <= 1000000 && o->frames > 0 && o->frames <= 1000;
+}
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, size_t(q * (v.size() - 1) + 0.5))];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  if (!Parse(argc, argv, &o)) {
+    std::fprintf(stderr,
+                 "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
+                 "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
+                 "[--frames F]\n");
+    return 2;
+  }
+  if (!Loopback(o.server)) {
+    std::fprintf(stderr, "rim_load: only loopback servers (127.x, localhost, [::1]): %s\n",
+                 o.server.c_str());
+    return 2;
+  }
+  auto client = rim::Client::Connect(o.server);
+  if (!client.ok()) {
+    std::fprintf(stderr, "rim_load: %s\n", std::string(client.status().message()).c_str());
+    return 3;
+  }
+  // The scans: cast once, replayed in a loop by every robot (robot r starts at a different frame).
+  std::fprintf(stderr, "rim_load: casting %d city frames...\n", o.frames);
+  rim::sim::CityFrameOptions city;
+  city.frames = o.frames;
+  rim::sim::CityFrames source(city);
+  std::vector<rim::PosedScan> frames;
+  for (size_t k = 0; k < source.size(); ++k) frames.push_back(source.Frame(k));
+
+  const auto deadline =
+      std::chrono::steady_clock::now() + std::chrono::duration<double>(o.duration_s);
+  std::atomic<bool> failed{false};
+  std::mutex mu;
+  std::vector<double> query_ms;
+  std::vector<std::string> robots;
+  std::vector<rim::StreamSummary> summaries(o.robots);
+  std::vector<uint32_t> min_iterations(o.robots, 1u << 30);
+  std::vector<uint64_t> max_lag(o.robots, 0);
+  std::atomic<uint64_t> tiles{0}, tile_bytes{0}, query_points{0};
+
+  for (int r = 0; r < o.robots; ++r) {
+    robots.push_back("load_robot_" + std::to_string(r));
+    auto created = client->CreateSession(robots.back(), "maicity");
+    if (!created.ok()) {
+      std::fprintf(stderr, "rim_load: create %s: %s\n", robots.back().c_str(),
+                   std::string(created.status().message()).c_str());
+      return 1;
+    }
+  }
+  std::vector<std::thread> threads;
+  for (int r = 0; r < o.robots; ++r) {
+    threads.emplace_back([&, r] {
+      size_t k = size_t(r) * 7;
+      rim::StreamOptions options;
+      options.rate_hz = o.rate_hz;
+      options.on_ack = [&, r](const rim::v1::ScanAck& ack) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (ack.state() == rim::v1::ScanAck::INTEGRATED)
+          min_iterations[r] = std::min(min_iterations[r], ack.iterations());
+        max_lag[r] = std::max(max_lag[r], ack.lag_frames());
+      };
+      auto summary = client->Session(robots[r]).Stream(
+          [&](rim::v1::Scan* scan) -> absl::StatusOr<bool> {
+            if (std::chrono::steady_clock::now() >= deadline) return false;
+            *scan = rim::ScanToProto(frames[k++ % frames.size()], robots[r], 0);
+            return true;
+          },
+          options);
+      if (!summary.ok() || summary->rejected > 0) failed = true;
+      if (summary.ok()) summaries[r] = *summary;
+    });
+  }
+  for (int p = 0; p < o.planners && o.robots > 0; ++p) {
+    threads.emplace_back([&, p] {
+      std::mt19937 rng(p);
+      std::uniform_real_distribution<float> u(-10.f, 10.f);
+      while (std::chrono::steady_clock::now() < deadline) {
+        const rim::PosedScan& near = frames[rng() % frames.size()];
+        const rim::Vec3d c = near.T_world_sensor.translation();
+        std::vector<rim::Vec3f> points(o.batch);
+        for (auto& q : points) q = rim::Vec3f(c.x() + u(rng), c.y() + u(rng), u(rng) * 0.2f);
+        const auto start = std::chrono::steady_clock::now();
+        auto answer = client->Session(robots[p % robots.size()]).Query(points);
+        const double ms =
+            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+                .count();
+        if (!answer.ok()) {
+          failed = true;
+          return;
+        }
+        query_points += points.size();
+        std::lock_guard<std::mutex> lock(mu);
+        query_ms.push_back(ms);
+      }
+    });
+  }
+  for (int d = 0; d < o.dashboards && o.robots > 0; ++d) {
+    threads.emplace_back([&, d] {
+      rim::WatchOptions options;
+      options.duration = std::chrono::milliseconds(int64_t(o.duration_s * 1000));
+      const absl::Status s = client->Session(robots[d % robots.size()])
+                                 .Watch(
+                                     [&](const rim::DecodedTile& t) {
+                                       ++tiles;
+                                       tile_bytes += t.draco.size();
+                                       return true;
+                                     },
+                                     options);
+      if (!s.ok()) failed = true;
+    });
+  }
+  for (auto& t : threads) t.join();
+
+  bool consistent = true;
+  uint64_t memory = 0;
+  std::printf("rim_load: %d robots at %.1f Hz, %d planners (%d points), %d dashboards, %.0f s\n",
+              o.robots, o.rate_hz, o.planners, o.batch, o.dashboards, o.duration_s);
+  for (int r = 0; r < o.robots; ++r) {
+    auto info = client->GetSession(robots[r]);
+    if (!info.ok()) {
+      failed = true;
+      continue;
+    }
+    consistent = consistent && info->integrated_frames() == info->accepted_frames();
+    memory += info->host_memory_bytes();
+    const rim::StreamSummary& s = summaries[r];
+    std::printf(
+        "  %s: sent %llu, accepted %llu, integrated %llu (%.2f frames/s), rejected %llu, "
+        "lowest iterations/frame %u, largest lag %llu frames\n",
+        robots[r].c_str(), (unsigned long long)s.sent, (unsigned long long)s.accepted,
+        (unsigned long long)s.integrated, s.seconds > 0 ? s.integrated / s.seconds : 0.0,
+        (unsigned long long)s.rejected, min_iterations[r] == (1u << 30) ? 0 : min_iterations[r],
+        (unsigned long long)max_lag[r]);
+  }
+  std::printf("  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms\n",
+              query_ms.size(), (unsigned long long)query_points.load(), Quantile(query_ms, 0.5),
+              Quantile(query_ms, 0.99));
+  std::printf("  tiles watched: %llu (%.1f MB)\n", (unsigned long long)tiles.load(),
+              tile_bytes.load() / 1e6);
+  std::printf("  sessions' host memory at the end: %.0f MB\n", memory / 1e6);
+  for (const auto& r : robots) (void)client->CloseSession(r, false);
+  if (failed || !consistent) {
+    std::printf("rim_load: FAILED (a rejected scan, a failed RPC, or integrated != accepted)\n");
+    return 1;
+  }
+  std::printf("rim_load: OK\n");
+  return 0;
+}
