@@ -128,9 +128,7 @@ TEST(ServerFaultsTest, KillNineWhileSavingLosesNothing) {
       (*server)->Kill();
       saver.join();
     }
-    ServerProcessOptions again;
-    again.data_dir = data_dir;
-    auto restarted = ServerProcess::Start(again);
+    auto restarted = ServerProcess::StartOn(data_dir);
     ASSERT_TRUE(restarted.ok()) << restarted.status();
     auto client = Client::Connect((*restarted)->address());
     ASSERT_TRUE(client.ok());
@@ -172,9 +170,7 @@ TEST(ServerFaultsTest, CorruptCheckpointIsDetectedAndNamed) {
     f.seekp(std::streamoff(largest / 2));
     f.write(&c, 1);
   }
-  ServerProcessOptions again;
-  again.data_dir = data_dir;
-  auto restarted = ServerProcess::Start(again);
+  auto restarted = ServerProcess::StartOn(data_dir);
   ASSERT_TRUE(restarted.ok()) << restarted.status();
   auto client = Client::Connect((*restarted)->address());
   ASSERT_TRUE(client.ok());
@@ -243,9 +239,7 @@ TEST(ServerFaultsTest, RestartWithManySessionsOnDisk) {
     }
   }
   ASSERT_EQ((*server)->Stop().value_or(-1), 0);
-  ServerProcessOptions again;
-  again.data_dir = data_dir;
-  auto restarted = ServerProcess::Start(again);
+  auto restarted = ServerProcess::StartOn(data_dir);
   ASSERT_TRUE(restarted.ok()) << restarted.status();
   auto client = Client::Connect((*restarted)->address());
   ASSERT_TRUE(client.ok());

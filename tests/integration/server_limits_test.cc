@@ -364,9 +364,7 @@ TEST(ServerShutdownTest, SigtermMidStreamEndsTheStreamSavesEveryAcceptedScanAndE
               accepted.load(), seconds, stream_status.ToString().c_str());
 
   // Restart on the same data dir: the saved session has every accepted scan.
-  ServerProcessOptions again;
-  again.data_dir = data_dir;
-  auto restarted = ServerProcess::Start(again);
+  auto restarted = ServerProcess::StartOn(data_dir);
   ASSERT_TRUE(restarted.ok()) << restarted.status();
   auto client2 = Client::Connect((*restarted)->address());
   ASSERT_TRUE(client2.ok());

@@ -141,4 +141,10 @@ std::string ServerProcess::Log() const {
   return ss.str();
 }
 
+absl::StatusOr<std::unique_ptr<ServerProcess>> ServerProcess::StartOn(const std::string& data_dir) {
+  ServerProcessOptions options;
+  options.data_dir = data_dir;
+  return Start(options);
+}
+
 }  // namespace rim::testing_support

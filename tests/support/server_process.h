@@ -42,6 +42,8 @@ class ServerProcess {
   // get there within startup_timeout.
   static absl::StatusOr<std::unique_ptr<ServerProcess>> Start(
       const ServerProcessOptions& options = {});
+  // A new server on the data dir of a stopped or killed one (a restart), default options.
+  static absl::StatusOr<std::unique_ptr<ServerProcess>> StartOn(const std::string& data_dir);
 
   // Stops the server (SIGTERM, then SIGKILL after 30 s) if it still runs.
   ~ServerProcess();
