@@ -39,6 +39,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("train.adam_beta1", c.train.adam_beta1);
   v("train.adam_beta2", c.train.adam_beta2);
   v("train.adam_eps", c.train.adam_eps);
+  v("train.step", c.train.step);
   v("sampler.rays_per_iteration", c.sampler.rays_per_iteration);
   v("sampler.surface_samples", c.sampler.surface_samples);
   v("sampler.free_samples", c.sampler.free_samples);
@@ -143,6 +144,9 @@ absl::Status MapperConfig::Validate() const {
   if (!(train.learning_rate > 0.f)) return Bad("train.learning_rate", "must be > 0");
   if (!(train.sigma_m > 0.f)) return Bad("train.sigma_m", "must be > 0");
   if (!(train.eikonal_weight >= 0.f)) return Bad("train.eikonal_weight", "must be >= 0");
+  if (train.step != "fast" && train.step != "libtorch") {
+    return Bad("train.step", "must be \"fast\" or \"libtorch\"");
+  }
   if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f))
     return Bad("train.adam_beta1", "must be in [0, 1)");
   if (!(train.adam_beta2 >= 0.f && train.adam_beta2 < 1.f))

@@ -42,6 +42,9 @@ struct TrainConfig {
   float adam_beta1 = 0.9f;
   float adam_beta2 = 0.999f;
   float adam_eps = 1e-15f;
+  // The decoder part of a training step: "fast" (hand-written Eigen products, mlp_step.h) or
+  // "libtorch" (autograd, train_step.h): the reference the fast one is tested against.
+  std::string step = "fast";
 };
 
 // Ray sampling (§3.4 step 3, "Sample").

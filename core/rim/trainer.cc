@@ -67,8 +67,14 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
   in.eikonal_weight = config_.train.eikonal_weight;
   in.eikonal_step_m = float(0.5 * map_->geometry().leaf_m());
   in.train_decoder = train_decoder;
-  auto out = RunTrainStep(*decoder_, in);
-  if (!out.ok()) return out.status();
+  TrainStepOutput* out = &step_out_;
+  if (config_.train.step == "libtorch") {
+    auto ref = RunTrainStep(*decoder_, in);
+    if (!ref.ok()) return ref.status();
+    step_out_ = *std::move(ref);
+  } else if (absl::Status s = mlp_.Run(*decoder_, in, out); !s.ok()) {
+    return s;
+  }
   double t3 = Now();
 
   grad_.BeginIteration();

@@ -9,7 +9,9 @@
 #include "rim/decoder.h"
 #include "rim/encoder.h"
 #include "rim/local_map.h"
+#include "rim/mlp_step.h"
 #include "rim/sampler.h"
+#include "rim/train_step.h"
 
 namespace rim {
 
@@ -41,6 +43,8 @@ class Trainer {
   std::vector<float> xyz_;  // labelled samples, then eikonal probes
   LocalEncoding encoding_;
   std::vector<float> features_;
+  MlpTrainStep mlp_;
+  TrainStepOutput step_out_;
   SparseGradient grad_;
   AdamBiasTable bias_;
   bool grad_ready_ = false;
