@@ -40,6 +40,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("train.adam_beta2", c.train.adam_beta2);
   v("train.adam_eps", c.train.adam_eps);
   v("train.step", c.train.step);
+  v("train.threads", c.train.threads);
   v("sampler.rays_per_iteration", c.sampler.rays_per_iteration);
   v("sampler.surface_samples", c.sampler.surface_samples);
   v("sampler.free_samples", c.sampler.free_samples);
@@ -147,6 +148,7 @@ absl::Status MapperConfig::Validate() const {
   if (train.step != "fast" && train.step != "libtorch") {
     return Bad("train.step", "must be \"fast\" or \"libtorch\"");
   }
+  if (train.threads < 1 || train.threads > 64) return Bad("train.threads", "must be in [1, 64]");
   if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f))
     return Bad("train.adam_beta1", "must be in [0, 1)");
   if (!(train.adam_beta2 >= 0.f && train.adam_beta2 < 1.f))

@@ -45,6 +45,9 @@ struct TrainConfig {
   // The decoder part of a training step: "fast" (hand-written Eigen products, mlp_step.h) or
   // "libtorch" (autograd, train_step.h): the reference the fast one is tested against.
   std::string step = "fast";
+  // Threads of one session's training iterations (encode, gradient scatter, Adam). The server
+  // runs --train-slots sessions at once, each with this many threads.
+  int threads = 2;
 };
 
 // Ray sampling (§3.4 step 3, "Sample").

@@ -18,16 +18,14 @@ void AdamUpdate(const AdamHyper& h, int step, int n, const float* grad, float* p
   AdamUpdateRow(h, float(double(h.lr) / bc1), float(1.0 / std::sqrt(bc2)), n, grad, param, m, v);
 }
 
-void AdamBiasTable::Get(int step, float* step_size, float* inv_sqrt_bc2) {
-  while (int(step_size_.size()) <= step) {
-    const int t = int(step_size_.size());
-    const double bc1 = 1.0 - std::pow(double(h_.beta1), t);
-    const double bc2 = 1.0 - std::pow(double(h_.beta2), t);
-    step_size_.push_back(t == 0 ? 0.f : float(double(h_.lr) / bc1));
-    inv_sqrt_bc2_.push_back(t == 0 ? 0.f : float(1.0 / std::sqrt(bc2)));
+AdamBiasTable::AdamBiasTable(const AdamHyper& h) {
+  constexpr int kMaxSteps = 1 << 21;
+  for (int t = 0;; ++t) {
+    const double b1t = std::pow(double(h.beta1), t), b2t = std::pow(double(h.beta2), t);
+    step_size_.push_back(t == 0 ? 0.f : float(double(h.lr) / (1.0 - b1t)));
+    inv_sqrt_bc2_.push_back(t == 0 ? 0.f : float(1.0 / std::sqrt(1.0 - b2t)));
+    if ((t > 0 && b1t < 1e-9 && b2t < 1e-9) || t == kMaxSteps) break;
   }
-  *step_size = step_size_[step];
-  *inv_sqrt_bc2 = inv_sqrt_bc2_[step];
 }
 
 Decoder::Decoder(int input_dim, const DecoderConfig& config) : input_dim_(input_dim) {

@@ -5,6 +5,7 @@
 // whatever the batch, which seamless meshing across tiles relies on.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -24,15 +25,21 @@ void AdamUpdate(const AdamHyper& h, int step, int n, const float* grad, float* p
                 float* v);
 
 // Adam's bias corrections per step count, computed once: the sparse feature update runs one
-// small Adam row per touched voxel, and two pow() calls per row would dominate it.
+// small Adam row per touched voxel, and two pow() calls per row would dominate it. Filled in the
+// constructor and read-only afterwards, so threads may share it. Past the table's end (the
+// first step where β₁ᵗ and β₂ᵗ are both below 1e-9, at most 2²¹ steps) the corrections are the
+// last entry's: they equal 1 to float precision there.
 class AdamBiasTable {
  public:
-  explicit AdamBiasTable(const AdamHyper& h) : h_(h) {}
+  explicit AdamBiasTable(const AdamHyper& h);
   // lr / (1 − β1^t) and 1 / sqrt(1 − β2^t).
-  void Get(int step, float* step_size, float* inv_sqrt_bc2);
+  void Get(int step, float* step_size, float* inv_sqrt_bc2) const {
+    const size_t t = std::min(size_t(step < 0 ? 0 : step), step_size_.size() - 1);
+    *step_size = step_size_[t];
+    *inv_sqrt_bc2 = inv_sqrt_bc2_[t];
+  }
 
  private:
-  AdamHyper h_;
   std::vector<float> step_size_, inv_sqrt_bc2_;
 };
 

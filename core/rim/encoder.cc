@@ -1,58 +1,80 @@
 #include "rim/encoder.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
 namespace rim {
 
-void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc,
-                 float* features) {
+namespace {
+
+// Corners and weights (first pass), then the weighted feature sums (second pass) of points
+// [begin, end) at one level.
+void EncodeRange(const LocalMap& map, int l, const float* xyz, int begin, int end,
+                 LocalEncoding* enc, float* features) {
   const MapGeometry& geo = map.geometry();
   const int L = geo.levels(), D = geo.feature_dim();
+  const LocalMap::Level& lv = map.level(l);
+  const double inv_h = 1.0 / geo.voxel_m(l);
+  const Int3 dims = lv.dims;
+  for (int p = begin; p < end; ++p) {
+    int s0[3], s1[3];
+    float f[3];
+    for (int a = 0; a < 3; ++a) {
+      const double u = double(xyz[3 * p + a]) * inv_h;
+      const double base = std::floor(u);
+      f[a] = float(u - base);
+      // Ring-buffer slots of the lower and upper corner along this axis.
+      s0[a] = PosMod(int(base), dims[a]);
+      s1[a] = s0[a] + 1 == dims[a] ? 0 : s0[a] + 1;
+    }
+    int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
+    float* w = &enc->weights[(size_t(p) * L + l) * 8];
+    for (int c = 0; c < 8; ++c) {
+      const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+      slots[c] = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
+                 (cz ? s1[2] : s0[2]);
+      w[c] = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
+    }
+  }
+  // Second pass, once every point's corners are known: the feature rows are scattered over the
+  // dense grid, so a later point's rows are requested while this one's are summed.
+  constexpr int kAhead = 4;
+  for (int p = begin; p < end; ++p) {
+    if (p + kAhead < end) {
+      const int64_t* ahead = &enc->slots[(size_t(p + kAhead) * L + l) * 8];
+      for (int c = 0; c < 8; ++c) __builtin_prefetch(&lv.features[ahead[c] * D]);
+    }
+    const int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
+    const float* w = &enc->weights[(size_t(p) * L + l) * 8];
+    float* out = features + size_t(p) * L * D + size_t(l) * D;
+    std::fill_n(out, D, 0.f);
+    for (int c = 0; c < 8; ++c) {
+      const float* feat = &lv.features[slots[c] * D];
+      for (int d = 0; d < D; ++d) out[d] += w[c] * feat[d];
+    }
+  }
+}
+
+}  // namespace
+
+void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features,
+                 WorkerPool* pool) {
+  const int L = map.geometry().levels();
   enc->points = n;
   enc->slots.resize(size_t(n) * L * 8);
   enc->weights.resize(size_t(n) * L * 8);
-  for (int l = 0; l < L; ++l) {
-    const LocalMap::Level& lv = map.level(l);
-    const double inv_h = 1.0 / geo.voxel_m(l);
-    const Int3 dims = lv.dims;
-    for (int p = 0; p < n; ++p) {
-      int s0[3], s1[3];
-      float f[3];
-      for (int a = 0; a < 3; ++a) {
-        const double u = double(xyz[3 * p + a]) * inv_h;
-        const double base = std::floor(u);
-        f[a] = float(u - base);
-        // Ring-buffer slots of the lower and upper corner along this axis.
-        s0[a] = PosMod(int(base), dims[a]);
-        s1[a] = s0[a] + 1 == dims[a] ? 0 : s0[a] + 1;
-      }
-      int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
-      float* w = &enc->weights[(size_t(p) * L + l) * 8];
-      for (int c = 0; c < 8; ++c) {
-        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-        slots[c] = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
-                   (cz ? s1[2] : s0[2]);
-        w[c] = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
-      }
-    }
-    // Second pass, once every point's corners are known: the feature rows are scattered over the
-    // dense grid, so a later point's rows are requested while this one's are summed.
-    constexpr int kAhead = 4;
-    for (int p = 0; p < n; ++p) {
-      if (p + kAhead < n) {
-        const int64_t* ahead = &enc->slots[(size_t(p + kAhead) * L + l) * 8];
-        for (int c = 0; c < 8; ++c) __builtin_prefetch(&lv.features[ahead[c] * D]);
-      }
-      const int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
-      const float* w = &enc->weights[(size_t(p) * L + l) * 8];
-      float* out = features + size_t(p) * L * D + size_t(l) * D;
-      std::fill_n(out, D, 0.f);
-      for (int c = 0; c < 8; ++c) {
-        const float* feat = &lv.features[slots[c] * D];
-        for (int d = 0; d < D; ++d) out[d] += w[c] * feat[d];
-      }
-    }
+  // Every (level, chunk of points) pair writes its own entries: no two tasks share an output.
+  const int chunks = pool ? pool->threads() : 1;
+  auto task = [&](int i) {
+    const int l = i / chunks, c = i % chunks;
+    EncodeRange(map, l, xyz, int(int64_t(n) * c / chunks), int(int64_t(n) * (c + 1) / chunks), enc,
+                features);
+  };
+  if (pool) {
+    pool->Run(L * chunks, task);
+  } else {
+    for (int i = 0; i < L; ++i) task(i);
   }
 }
 
@@ -83,9 +105,21 @@ constexpr int kPrefetchPoints = 4;
 }  // namespace
 
 void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
-                             const float* grad_features) {
+                             const float* grad_features, WorkerPool* pool) {
+  const int L = map.geometry().levels();
+  // Levels have their own stamps, rows and gradients: one task per level, in a fixed order
+  // within each, so the result does not depend on the thread count.
+  if (pool) {
+    pool->Run(L, [&](int l) { ScatterLevel(map, enc, grad_features, l); });
+  } else {
+    for (int l = 0; l < L; ++l) ScatterLevel(map, enc, grad_features, l);
+  }
+}
+
+void SparseGradient::ScatterLevel(const LocalMap& map, const LocalEncoding& enc,
+                                  const float* grad_features, int l) {
   const int L = map.geometry().levels(), D = map.geometry().feature_dim();
-  for (int l = 0; l < L; ++l) {
+  {
     Level& lv = levels_[l];
     lv.grad.reserve(size_t(enc.points) * 8 * D);  // at most 8 new rows per point
     for (int p = 0; p < enc.points; ++p) {

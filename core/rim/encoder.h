@@ -9,6 +9,7 @@
 
 #include "rim/local_map.h"
 #include "rim/submap_store.h"
+#include "rim/worker_pool.h"
 
 namespace rim {
 
@@ -20,8 +21,10 @@ struct LocalEncoding {
   std::vector<float> weights;  // points × L × 8
 };
 
-// Encodes n points (xyz, inside the box) into features (n × L·D).
-void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features);
+// Encodes n points (xyz, inside the box) into features (n × L·D); spread over `pool`'s threads
+// when one is given (same result either way).
+void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* enc, float* features,
+                 WorkerPool* pool = nullptr);
 
 // Accumulates feature gradients of the voxels a batch touched, per level, without touching
 // anything else: per-slot stamps say whether a slot already has a row this iteration.
@@ -30,7 +33,9 @@ class SparseGradient {
   void Reset(const LocalMap& map);  // sizes the stamp arrays once; cheap afterwards
   void BeginIteration();
   // grad_features: points × L·D, as produced by the loss backward.
-  void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features);
+  // With a pool, one level per task.
+  void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features,
+               WorkerPool* pool = nullptr);
   struct Level {
     std::vector<uint32_t> stamp;   // per slot
     std::vector<int32_t> row;      // per slot, valid when stamp == iteration
@@ -40,6 +45,9 @@ class SparseGradient {
   Level& level(int l) { return levels_[l]; }
 
  private:
+  void ScatterLevel(const LocalMap& map, const LocalEncoding& enc, const float* grad_features,
+                    int l);
+
   std::vector<Level> levels_;
   uint32_t iteration_ = 0;
 };

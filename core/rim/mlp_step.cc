@@ -1,7 +1,9 @@
 #include "rim/mlp_step.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 
 #include "absl/strings/str_cat.h"
 
@@ -19,10 +21,18 @@ inline float Sigmoid(float x) {
   return e / (1.f + e);
 }
 
+void RunChunks(WorkerPool* pool, int chunks, const std::function<void(int)>& fn) {
+  if (pool) {
+    pool->Run(chunks, fn);
+  } else {
+    for (int c = 0; c < chunks; ++c) fn(c);
+  }
+}
+
 }  // namespace
 
 absl::Status MlpTrainStep::Run(const Decoder& decoder, const TrainStepInput& in,
-                               TrainStepOutput* out) {
+                               TrainStepOutput* out, WorkerPool* pool) {
   const auto& layers = decoder.layers();
   const int n = in.rows;
   const int F = decoder.input_dim();
@@ -36,22 +46,28 @@ absl::Status MlpTrainStep::Run(const Decoder& decoder, const TrainStepInput& in,
   const int K = int(layers.size());
   const double t0 = Now();
 
-  // Forward: act_[k] = relu(act_[k−1]·Wₖᵀ + bₖ), the last layer without ReLU.
+  // Forward: act_[k] = relu(act_[k−1]·Wₖᵀ + bₖ), the last layer without ReLU, in fixed chunks of
+  // rows (so that the result does not depend on the thread count).
   act_.resize(size_t(K));
-  for (int k = 0; k < K; ++k) {
-    const Decoder::Layer& L = layers[size_t(k)];
-    const ConstMap W(p + L.weight_offset, L.out, L.in);
-    const Eigen::Map<const Eigen::RowVectorXf> b(p + L.bias_offset, L.out);
-    RowMatrix& a = act_[size_t(k)];
-    a.resize(n, L.out);
-    if (k == 0) {
-      a.noalias() = X * W.transpose();
-    } else {
-      a.noalias() = act_[size_t(k - 1)] * W.transpose();
+  for (int k = 0; k < K; ++k) act_[size_t(k)].resize(n, layers[size_t(k)].out);
+  const int chunks = (n + kChunkRows - 1) / kChunkRows;
+  auto forward = [&](int c) {
+    const int begin = c * kChunkRows, rows = std::min(n - begin, kChunkRows);
+    for (int k = 0; k < K; ++k) {
+      const Decoder::Layer& L = layers[size_t(k)];
+      const ConstMap W(p + L.weight_offset, L.out, L.in);
+      const Eigen::Map<const Eigen::RowVectorXf> b(p + L.bias_offset, L.out);
+      auto a = act_[size_t(k)].middleRows(begin, rows);
+      if (k == 0) {
+        a.noalias() = X.middleRows(begin, rows) * W.transpose();
+      } else {
+        a.noalias() = act_[size_t(k - 1)].middleRows(begin, rows) * W.transpose();
+      }
+      a.rowwise() += b;
+      if (k + 1 < K) a = a.cwiseMax(0.f);
     }
-    a.rowwise() += b;
-    if (k + 1 < K) a = a.cwiseMax(0.f);
-  }
+  };
+  RunChunks(pool, chunks, forward);
   const float* y = act_.back().data();  // n × 1
 
   // Loss and d loss / d y. BCE with logits s = −y/σ against S(label) = σ(−label/σ), averaged over
@@ -95,36 +111,53 @@ absl::Status MlpTrainStep::Run(const Decoder& decoder, const TrainStepInput& in,
   }
   const double t1 = Now();
 
-  // Backward: grad_ holds d loss / d (pre-activation of layer k).
+  // Backward, per chunk: g holds d loss / d (pre-activation of layer k) for the chunk's rows.
+  // Parameter gradients are summed per chunk, then over chunks in chunk order.
+  const size_t P = decoder.params().size();
+  out->grad_features.resize(size_t(n) * F);
+  chunk_grad_params_.resize(size_t(chunks));
+  work_.resize(size_t(chunks));
+  auto backward = [&](int c) {
+    const int begin = c * kChunkRows, rows = std::min(n - begin, kChunkRows);
+    Work& w = work_[size_t(c)];
+    w.grad = grad_.middleRows(begin, rows);
+    std::vector<float>& gp = chunk_grad_params_[size_t(c)];
+    if (in.train_decoder) gp.assign(P, 0.f);
+    for (int k = K - 1; k >= 0; --k) {
+      const Decoder::Layer& L = layers[size_t(k)];
+      const ConstMap W(p + L.weight_offset, L.out, L.in);
+      if (in.train_decoder) {
+        Eigen::Map<RowMatrix> gW(gp.data() + L.weight_offset, L.out, L.in);
+        Eigen::Map<Eigen::RowVectorXf> gb(gp.data() + L.bias_offset, L.out);
+        if (k == 0) {
+          gW.noalias() = w.grad.transpose() * X.middleRows(begin, rows);
+        } else {
+          gW.noalias() = w.grad.transpose() * act_[size_t(k - 1)].middleRows(begin, rows);
+        }
+        gb = w.grad.colwise().sum();
+      }
+      if (k == 0) {
+        Eigen::Map<RowMatrix> dX(out->grad_features.data() + size_t(begin) * F, rows, F);
+        dX.noalias() = w.grad * W;
+      } else {
+        // Through the ReLU of layer k−1: the gradient passes where its output is positive.
+        w.grad_prev.resize(rows, L.in);
+        w.grad_prev.noalias() = w.grad * W;
+        w.grad_prev =
+            (act_[size_t(k - 1)].middleRows(begin, rows).array() > 0.f).select(w.grad_prev, 0.f);
+        w.grad.swap(w.grad_prev);
+      }
+    }
+  };
+  RunChunks(pool, chunks, backward);
   if (in.train_decoder) {
-    out->grad_params.assign(decoder.params().size(), 0.f);
+    out->grad_params.assign(P, 0.f);
+    for (int c = 0; c < chunks; ++c) {
+      const std::vector<float>& gp = chunk_grad_params_[size_t(c)];
+      for (size_t i = 0; i < P; ++i) out->grad_params[i] += gp[i];
+    }
   } else {
     out->grad_params.clear();
-  }
-  out->grad_features.resize(size_t(n) * F);
-  for (int k = K - 1; k >= 0; --k) {
-    const Decoder::Layer& L = layers[size_t(k)];
-    const ConstMap W(p + L.weight_offset, L.out, L.in);
-    if (in.train_decoder) {
-      Eigen::Map<RowMatrix> gW(out->grad_params.data() + L.weight_offset, L.out, L.in);
-      Eigen::Map<Eigen::RowVectorXf> gb(out->grad_params.data() + L.bias_offset, L.out);
-      if (k == 0) {
-        gW.noalias() = grad_.transpose() * X;
-      } else {
-        gW.noalias() = grad_.transpose() * act_[size_t(k - 1)];
-      }
-      gb = grad_.colwise().sum();
-    }
-    if (k == 0) {
-      Eigen::Map<RowMatrix> dX(out->grad_features.data(), n, F);
-      dX.noalias() = grad_ * W;
-    } else {
-      // Through the ReLU of layer k−1: the gradient passes where its output is positive.
-      grad_prev_.resize(n, L.in);
-      grad_prev_.noalias() = grad_ * W;
-      grad_prev_ = (act_[size_t(k - 1)].array() > 0.f).select(grad_prev_, 0.f);
-      grad_.swap(grad_prev_);
-    }
   }
   const double t2 = Now();
   out->loss = float(loss);

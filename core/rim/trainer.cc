@@ -20,7 +20,8 @@ Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
       decoder_(decoder),
       sampler_(config.sampler, config.train.sigma_m, config.sampler.seed),
       bias_(AdamHyper{config.train.learning_rate, config.train.adam_beta1, config.train.adam_beta2,
-                      config.train.adam_eps}) {}
+                      config.train.adam_eps}),
+      pool_(config.train.threads) {}
 
 void Trainer::AddEikonalProbes() {
   const float h = float(0.5 * map_->geometry().leaf_m());
@@ -55,7 +56,7 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
   const int rows = int(xyz_.size() / 3);
   double t1 = Now();
   features_.resize(size_t(rows) * map_->geometry().encoding_dim());
-  EncodeLocal(*map_, xyz_.data(), rows, &encoding_, features_.data());
+  EncodeLocal(*map_, xyz_.data(), rows, &encoding_, features_.data(), &pool_);
   double t2 = Now();
 
   TrainStepInput in;
@@ -72,13 +73,13 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
     auto ref = RunTrainStep(*decoder_, in);
     if (!ref.ok()) return ref.status();
     step_out_ = *std::move(ref);
-  } else if (absl::Status s = mlp_.Run(*decoder_, in, out); !s.ok()) {
+  } else if (absl::Status s = mlp_.Run(*decoder_, in, out, &pool_); !s.ok()) {
     return s;
   }
   double t3 = Now();
 
   grad_.BeginIteration();
-  grad_.Scatter(*map_, encoding_, out->grad_features.data());
+  grad_.Scatter(*map_, encoding_, out->grad_features.data(), &pool_);
   ApplyFeatureUpdates();
   if (train_decoder) {
     const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
@@ -105,15 +106,19 @@ void Trainer::ApplyFeatureUpdates() {
   const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                         config_.train.adam_beta2, config_.train.adam_eps};
   const int D = map_->geometry().feature_dim();
-  for (int l = 0; l < map_->geometry().levels(); ++l) {
+  // Touched rows are distinct slots, so any split of them is race-free: (level, chunk) tasks.
+  const int chunks = pool_.threads();
+  pool_.Run(map_->geometry().levels() * chunks, [&](int task) {
+    const int l = task / chunks, c = task % chunks;
     LocalMap::Level& lv = map_->level(l);
     SparseGradient::Level& g = grad_.level(l);
     // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
     const size_t n = g.touched.size();
-    for (size_t r = 0; r < n; ++r) {
+    const size_t begin = n * size_t(c) / size_t(chunks), end = n * size_t(c + 1) / size_t(chunks);
+    for (size_t r = begin; r < end; ++r) {
       // Rows are scattered over the dense grid: start loading a later row's features and
       // moments now, so that the misses overlap instead of queueing one after another.
-      if (r + kPrefetchRows < n) {
+      if (r + kPrefetchRows < end) {
         const int64_t ahead = g.touched[r + kPrefetchRows];
         __builtin_prefetch(&lv.features[ahead * D], 1);
         __builtin_prefetch(&lv.adam_m[ahead * D], 1);
@@ -128,7 +133,7 @@ void Trainer::ApplyFeatureUpdates() {
                     &lv.adam_m[slot * D], &lv.adam_v[slot * D]);
       lv.flags[slot] |= LocalMap::kHasData;
     }
-  }
+  });
 }
 
 void Trainer::MarkObserved() {

@@ -12,6 +12,7 @@
 #include "rim/mlp_step.h"
 #include "rim/sampler.h"
 #include "rim/train_step.h"
+#include "rim/worker_pool.h"
 
 namespace rim {
 
@@ -48,6 +49,7 @@ class Trainer {
   SparseGradient grad_;
   AdamBiasTable bias_;
   bool grad_ready_ = false;
+  WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };
 
 }  // namespace rim

@@ -280,3 +280,49 @@ TEST_F(MapperTest, LoadErrorsNameTheFile) {
 
 }  // namespace
 }  // namespace rim
+
+namespace rim {
+namespace {
+
+// Two frames mapped with the given overrides: the decoder's parameters and the SDF at the probe.
+std::pair<std::vector<float>, std::vector<float>> MapTwoFrames(std::vector<std::string> extra) {
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig(std::move(extra)));
+  EXPECT_TRUE(mapper.ok());
+  EXPECT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 1)).ok());
+  EXPECT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.3f, 2)).ok());
+  const std::vector<float> xyz = Probe();
+  QueryResult q;
+  EXPECT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
+  return {(*mapper)->decoder().params(), q.sdf};
+}
+
+TEST(MapperTrainingPathTest, ThreadCountDoesNotChangeTheMap) {
+  const auto one = MapTwoFrames({"train.threads=1"});
+  const auto three = MapTwoFrames({"train.threads=3"});
+  EXPECT_EQ(one.first, three.first);
+  EXPECT_EQ(one.second, three.second);
+}
+
+TEST(MapperTrainingPathTest, FastStepTrainsLikeTheLibtorchReference) {
+  const auto fast = MapTwoFrames({"train.step=fast"});
+  const auto ref = MapTwoFrames({"train.step=libtorch"});
+  ASSERT_EQ(fast.second.size(), ref.second.size());
+  // Float sums in a different order drift apart over iterations, but only by rounding.
+  for (size_t i = 0; i < fast.second.size(); ++i) EXPECT_NEAR(fast.second[i], ref.second[i], 1e-3f);
+  float max_param_diff = 0.f;
+  for (size_t i = 0; i < fast.first.size(); ++i)
+    max_param_diff = std::max(max_param_diff, std::abs(fast.first[i] - ref.first[i]));
+  EXPECT_LT(max_param_diff, 1e-3f);
+}
+
+TEST(MapperTrainingPathTest, UnknownStepIsRejected) {
+  auto config = MakePreset("maicity");
+  const absl::Status s = ApplyOverrides({"train.step=gpu"}, &*config);
+  const absl::Status v = s.ok() ? config->Validate() : s;
+  EXPECT_FALSE(v.ok());
+  EXPECT_THAT(std::string(v.message()), HasSubstr("train.step"));
+}
+
+}  // namespace
+}  // namespace rim

@@ -1,7 +1,6 @@
 // The hand-written training step (MlpTrainStep) against the libtorch reference (RunTrainStep):
 // same loss, same feature gradient, same parameter gradient, for decoders of 0–2 hidden layers,
-// with and without the eikonal term, frozen or training; and the same parameters after a few
-// training iterations of a real mapper run with either step.
+// with and without the eikonal term, frozen or training, on one thread or several.
 #include "rim/mlp_step.h"
 
 #include <algorithm>
@@ -13,6 +12,7 @@
 #include "rim/config.h"
 #include "rim/decoder.h"
 #include "rim/train_step.h"
+#include "rim/worker_pool.h"
 
 namespace rim {
 namespace {
@@ -46,7 +46,7 @@ TEST_P(MlpStepTest, MatchesLibtorchAutograd) {
   dc.hidden_width = 32;
   dc.seed = 11;
   Decoder decoder(kInput, dc);
-  const int labelled = 3000, groups = 200;
+  const int labelled = 5000, groups = 400;     // several chunks of MlpTrainStep::kChunkRows
   const int rows = labelled + 6 * groups + 5;  // 5 rows that form no full probe group
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> feature(-0.5f, 0.5f), label(-0.4f, 0.4f);
@@ -78,6 +78,13 @@ TEST_P(MlpStepTest, MatchesLibtorchAutograd) {
       EXPECT_TRUE(out.grad_params.empty());
     }
   }
+  // Spread over threads: bit for bit the same (rows go in fixed chunks whatever the threads).
+  WorkerPool pool(3);
+  TrainStepOutput threaded;
+  ASSERT_TRUE(fast.Run(decoder, in, &threaded, &pool).ok());
+  EXPECT_EQ(threaded.loss, out.loss);
+  EXPECT_EQ(threaded.grad_features, out.grad_features);
+  EXPECT_EQ(threaded.grad_params, out.grad_params);
   // The gradient is not trivially zero.
   float norm = 0.f;
   for (float g : out.grad_features) norm += g * g;

@@ -1,0 +1,47 @@
+// A fixed set of threads that run the parallel parts of a training iteration (encode, gradient
+// scatter, Adam) on the cores a session is given (train.threads). The caller's thread works too,
+// so a pool of n threads starts n − 1. Regions are a few milliseconds long and come ~100 times a
+// second, so the workers stay alive and wait on a condition variable instead of being started
+// per region.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace rim {
+
+class WorkerPool {
+ public:
+  explicit WorkerPool(int threads);
+  ~WorkerPool();
+  WorkerPool(const WorkerPool&) = delete;
+  WorkerPool& operator=(const WorkerPool&) = delete;
+
+  int threads() const { return int(workers_.size()) + 1; }
+
+  // Runs fn(0) … fn(tasks − 1), each exactly once, spread over the threads in the order of their
+  // index (a thread takes the next task when it finishes one); returns when all have finished.
+  // fn must not throw. Not reentrant: one Run at a time per pool.
+  void Run(int tasks, const std::function<void(int)>& fn);
+
+ private:
+  void Work();
+  void Drain();
+
+  std::mutex mu_;
+  std::condition_variable start_cv_, done_cv_;
+  const std::function<void(int)>* fn_ = nullptr;
+  int tasks_ = 0;
+  std::atomic<int> next_{0};
+  int busy_ = 0;
+  uint64_t generation_ = 0;
+  bool stop_ = false;
+  std::vector<std::thread> workers_;
+};
+
+}  // namespace rim
