@@ -7,6 +7,7 @@
 #include <optional>
 
 #include "absl/strings/str_cat.h"
+#include "rim/binary_io.h"
 
 namespace rim::server {
 namespace {
@@ -113,6 +114,8 @@ void Session::OnSpace(std::function<void()> fn) {
 absl::Status Session::Checkpoint(const std::string& dir) {
   const auto start = std::chrono::steady_clock::now();
   int64_t frames = 0;
+  // A link planted in the session's folder since it was opened would redirect the save.
+  if (absl::Status s = RefuseSymlinksUnder(dir); !s.ok()) return s;
   absl::Status saved = mapper_->Save(dir, &frames);
   if (!saved.ok()) return saved;
   const uint64_t bytes = CheckpointBytes(dir);

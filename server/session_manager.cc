@@ -88,6 +88,13 @@ std::string SessionManager::AbsoluteDir(const std::string& robot_id) const {
   return (std::filesystem::path(options_.data_dir) / RelativeDir(robot_id)).string();
 }
 
+absl::Status SessionManager::RefuseLinksToSession(const std::string& robot_id) const {
+  // The data dir itself may be a link (an administrator's choice); nothing below it may be.
+  RIM_RETURN_IF_ERROR(
+      RefuseSymlink((std::filesystem::path(options_.data_dir) / "sessions").string()));
+  return RefuseSymlinksUnder(AbsoluteDir(robot_id));
+}
+
 absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
     const std::string& robot_id, const std::string& preset,
     const std::vector<std::pair<std::string, std::string>>& overrides) {
@@ -145,6 +152,7 @@ std::vector<std::shared_ptr<Session>> SessionManager::List() const {
 
 absl::StatusOr<std::unique_ptr<Session>> SessionManager::CreateOnDisk(
     const std::string& robot_id, const MapperConfig& config, const SessionOptions& options) {
+  RIM_RETURN_IF_ERROR(RefuseLinksToSession(robot_id));
   const std::string dir = AbsoluteDir(robot_id);
   std::error_code ec;
   // A folder left by a saved or crashed session is its data: never overwrite it silently.
@@ -190,6 +198,7 @@ absl::StatusOr<std::string> SessionManager::Save(const std::string& robot_id) {
 
 absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string& robot_id) {
   if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
+  if (absl::Status s = RefuseLinksToSession(robot_id); !s.ok()) return s;
   const std::string dir = AbsoluteDir(robot_id);
   {
     std::lock_guard<std::mutex> lock(mu_);

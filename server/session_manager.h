@@ -81,6 +81,9 @@ class SessionManager {
   SessionOptions MakeSessionOptions(const std::string& robot_id) const;
   // After a session was built: RESOURCE_EXHAUSTED if adding it breaks the budget.
   absl::Status AdmitUnderBudget(const Session& session) const;
+  // FAILED_PRECONDITION when sessions/ or anything in the session's folder is a symbolic link:
+  // session folders never lead out of the data dir.
+  absl::Status RefuseLinksToSession(const std::string& robot_id) const;
   // A new session folder: config, empty write-ahead log.
   absl::StatusOr<std::unique_ptr<Session>> CreateOnDisk(const std::string& robot_id,
                                                         const MapperConfig& config,

@@ -63,7 +63,7 @@ absl::Status FsyncDir(const std::string& dir) {
 }
 
 absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) return ErrnoError(errno, absl::StrCat("open ", path));
   std::string out;
   struct stat st;
@@ -153,7 +153,7 @@ absl::Status WriteAheadLog::RecoverLastSegment() {
   RIM_ASSIGN_OR_RETURN(const WalSegmentExtent extent,
                        WalkWalSegment(seg.path, data, seg.first_index,
                                       /*allow_torn_tail=*/true, nullptr));
-  const int fd = ::open(seg.path.c_str(), O_WRONLY | O_CLOEXEC);
+  const int fd = ::open(seg.path.c_str(), O_WRONLY | O_CLOEXEC | O_NOFOLLOW);
   if (fd < 0) return ErrnoError(errno, absl::StrCat("open WAL segment ", seg.path));
   active_fd_ = fd;
   if (extent.torn_tail) {

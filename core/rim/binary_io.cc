@@ -8,11 +8,13 @@
 
 #include <array>
 #include <atomic>
+#include <filesystem>
 #include <utility>
 
 #include "absl/strings/escaping.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "rim/status_macros.h"
 
 namespace rim {
 namespace {
@@ -391,6 +393,27 @@ absl::Status MakeDirs(const std::string& path) {
     }
     return absl::ErrnoToStatus(err, absl::StrCat("MakeDirs ", path, ": mkdir ", prefix));
   }
+  return absl::OkStatus();
+}
+
+absl::Status RefuseSymlink(const std::string& path) {
+  struct stat st;
+  if (::lstat(path.c_str(), &st) != 0 || !S_ISLNK(st.st_mode)) return absl::OkStatus();
+  return absl::FailedPreconditionError(
+      absl::StrCat(path, " is a symbolic link; rim does not follow links in its data dir"));
+}
+
+absl::Status RefuseSymlinksUnder(const std::string& dir) {
+  RIM_RETURN_IF_ERROR(RefuseSymlink(dir));
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) return absl::OkStatus();
+  // recursive_directory_iterator does not descend into linked directories by default; a link
+  // is reported as an entry and refused here.
+  for (auto it = std::filesystem::recursive_directory_iterator(dir, ec);
+       !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
+    if (it->is_symlink(ec)) RIM_RETURN_IF_ERROR(RefuseSymlink(it->path().string()));
+  }
+  if (ec) return absl::InternalError(absl::StrCat("listing ", dir, ": ", ec.message()));
   return absl::OkStatus();
 }
 

@@ -126,4 +126,11 @@ absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string
 // Creates a directory and any missing parents, like `mkdir -p`. OK if it already exists.
 absl::Status MakeDirs(const std::string& path);
 
+// FAILED_PRECONDITION naming the path when `path` is a symbolic link; OK when it is anything
+// else or does not exist. Data dirs are checked with these before rim reads or writes in them, so
+// that a link planted in a data dir cannot make it read or overwrite files elsewhere.
+absl::Status RefuseSymlink(const std::string& path);
+// The same for `dir` and everything below it (the walk does not follow links).
+absl::Status RefuseSymlinksUnder(const std::string& dir);
+
 }  // namespace rim

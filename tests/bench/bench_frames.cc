@@ -12,14 +12,19 @@
 #include <cstdio>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "bench/bench_common.h"
 
 namespace rim::bench {
 namespace {
 
-std::unique_ptr<Mapper> NewMapper(const std::string& preset) {
-  absl::StatusOr<std::unique_ptr<Mapper>> mapper = Mapper::Create(Preset(preset));
+std::unique_ptr<Mapper> NewMapper(const std::string& preset,
+                                  const std::vector<std::string>& overrides = {}) {
+  MapperConfig config = Preset(preset);
+  CheckOk(ApplyOverrides(overrides, &config), "ApplyOverrides");
+  absl::StatusOr<std::unique_ptr<Mapper>> mapper = Mapper::Create(config);
   CheckOk(mapper.status(), "Mapper::Create");
   return *std::move(mapper);
 }
@@ -40,9 +45,10 @@ void SetStageCounters(benchmark::State& state, const StageTimings& t) {
       benchmark::Counter(t.iterations, benchmark::Counter::kAvgIterations);
 }
 
-void BM_Frame(benchmark::State& state, const std::string& preset) {
+void BM_Frame(benchmark::State& state, const std::string& preset,
+              const std::vector<std::string>& overrides) {
   const std::vector<PosedScan>& frames = CitySequence();
-  std::unique_ptr<Mapper> mapper = NewMapper(preset);
+  std::unique_ptr<Mapper> mapper = NewMapper(preset, overrides);
   size_t k = 0;
   for (; k < size_t(Options().warmup_frames) && k < frames.size(); ++k)
     CheckOk(mapper->IntegrateScan(frames[k]), "IntegrateScan (warm-up)");
@@ -98,12 +104,21 @@ void BM_Sequence(benchmark::State& state, const std::string& preset) {
 }  // namespace
 
 void RegisterFrameBenchmarks() {
+  // The default path (fast step, train.threads = 2) and, in the same run, one thread and the
+  // libtorch reference step on one thread (the path before the fast step), so that BENCHMARK.md
+  // can quote ratios measured side by side.
+  const std::vector<std::pair<std::string, std::vector<std::string>>> variants = {
+      {"", {}},
+      {"/threads:1", {"train.threads=1"}},
+      {"/libtorch,threads:1", {"train.step=libtorch", "train.threads=1"}}};
   for (const char* preset : {"maicity", "maicity_online"}) {
-    benchmark::RegisterBenchmark((std::string("Frame/") + preset).c_str(), BM_Frame,
-                                 std::string(preset))
-        ->Iterations(Options().measured_frames)
-        ->Unit(benchmark::kMillisecond)
-        ->UseRealTime();
+    for (const auto& [suffix, overrides] : variants) {
+      benchmark::RegisterBenchmark((std::string("Frame/") + preset + suffix).c_str(), BM_Frame,
+                                   std::string(preset), overrides)
+          ->Iterations(Options().measured_frames)
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime();
+    }
   }
 }
 

@@ -20,10 +20,22 @@ Connection::Connection(std::string address, ClientOptions options,
       stub_(rim::v1::Rim::NewStub(channel_)),
       health_(grpc::health::v1::Health::NewStub(channel_)) {}
 
+namespace {
+// gRPC aborts the process on a header value outside printable ASCII, so such values are never
+// handed to it: the token is checked in Connect, and a robot id that cannot be a header (the
+// server rejects it as a robot id anyway, with a message naming it) is sent without one.
+bool IsHeaderValue(absl::string_view value) {
+  for (char c : value)
+    if (c < 0x20 || c > 0x7e) return false;
+  return true;
+}
+}  // namespace
+
 void Connection::Prepare(grpc::ClientContext* context, absl::string_view robot_id,
                          std::chrono::milliseconds timeout) const {
   if (!options_.token.empty()) context->AddMetadata("authorization", "Bearer " + options_.token);
-  if (!robot_id.empty()) context->AddMetadata("x-robot-id", std::string(robot_id));
+  if (!robot_id.empty() && IsHeaderValue(robot_id))
+    context->AddMetadata("x-robot-id", std::string(robot_id));
   if (timeout.count() > 0) context->set_deadline(std::chrono::system_clock::now() + timeout);
 }
 
@@ -119,6 +131,9 @@ const char* ServingStatusName(ServingStatus status) {
 
 absl::StatusOr<Client> Client::Connect(const std::string& address, ClientOptions options) {
   if (address.empty()) return absl::InvalidArgumentError("no server address given");
+  if (!client_internal::IsHeaderValue(options.token))
+    return absl::InvalidArgumentError(
+        "the token contains characters other than printable ASCII (a newline at its end?)");
   grpc::ChannelArguments args;
   // Query answers with gradients are 17 bytes per point: a max-size batch is far over gRPC's 4 MB
   // default. The server enforces its own limits; this only has to not be the smaller one.
