@@ -153,28 +153,36 @@ void SparseGradient::ScatterLevel(const LocalMap& map, const LocalEncoding& enc,
 FeatureReader::FeatureReader(const LocalMap& map, const SubmapStore& store)
     : map_(map), store_(store), zeros_(map.geometry().feature_dim(), 0.f) {}
 
-const FeatureReader::Entry& FeatureReader::Fetch(int level, const Int3& g) {
-  auto [it, inserted] = cache_[level].try_emplace(g);
-  if (inserted) {
-    Entry& e = it->second;
-    e.features.assign(map_.geometry().feature_dim(), 0.f);
-    uint8_t observed = 0;
-    if (!store_.Read(level, g, e.features.data(), &observed)) observed = 0;
-    e.observed = observed & LocalMap::kObservedBits;
+FeatureReader::Slot FeatureReader::Fetch(int level, const Int3& g) {
+  const SubmapStore::BlockAddress a = store_.Address(level, g);
+  if (last_valid_[level] && last_origin_[level] == a.origin) return {last_block_[level], a.index};
+  auto& cache = blocks_[level];
+  auto it = cache.find(a.origin);
+  if (it == cache.end()) {
+    // Bounded: a batch spread over the whole map must not pin the whole store.
+    if (cache.size() >= kMaxCachedBlocks) cache.clear();
+    it = cache.emplace(a.origin, store_.ReadBlock(level, g)).first;
   }
-  return it->second;
+  last_valid_[level] = true;
+  last_origin_[level] = a.origin;
+  last_block_[level] = it->second.get();
+  return {it->second.get(), a.index};
 }
 
 const float* FeatureReader::Get(int level, const Int3& g) {
   if (map_.InBox(level, g)) {
     return &map_.level(level).features[map_.Slot(level, g) * map_.geometry().feature_dim()];
   }
-  return Fetch(level, g).features.data();
+  const Slot s = Fetch(level, g);
+  if (s.block == nullptr) return zeros_.data();
+  return &s.block->features[size_t(s.index) * map_.geometry().feature_dim()];
 }
 
 uint8_t FeatureReader::ObservedBits(const Int3& g0) {
   if (map_.InBox(0, g0)) return map_.level(0).flags[map_.Slot(0, g0)] & LocalMap::kObservedBits;
-  return Fetch(0, g0).observed;
+  const Slot s = Fetch(0, g0);
+  if (s.block == nullptr) return 0;
+  return s.block->observed[size_t(s.index)] & LocalMap::kObservedBits;
 }
 
 void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <unordered_map>
 #include <vector>
 
@@ -53,10 +54,14 @@ class SparseGradient {
 };
 
 // Reads features anywhere in the mapped world: from the live local map inside the box, from the
-// sub-map store elsewhere, zero where nothing is known. Caches store reads for one batch.
+// sub-map store elsewhere, zero where nothing is known. Keeps the store blocks it read (up to
+// kMaxCachedBlocks per level, then starts over), so use one reader per batch and per thread.
 class FeatureReader {
  public:
   FeatureReader(const LocalMap& map, const SubmapStore& store);
+  // Blocks pinned per level before the cache starts over (they stay alive while pinned even if
+  // the store replaces them).
+  static constexpr size_t kMaxCachedBlocks = 4096;
   // Features of lattice point g at a level (D floats, valid until the next call to Get).
   const float* Get(int level, const Int3& g);
   // Whether the finest voxel with minimum corner g was observed, near a surface or as free space.
@@ -68,15 +73,23 @@ class FeatureReader {
   void Encode(const Vec3d& p_W, float* features, float* jacobian);
 
  private:
-  struct Entry {
-    std::vector<float> features;
-    uint8_t observed = 0;  // LocalMap::kObservedBits
+  // One store block (null: the store has none there), shared with the store without a copy.
+  // Points near each other share blocks, so a batch pays one store lookup per block instead of
+  // one per lattice point, and nothing is allocated or copied per point.
+  using CachedBlock = std::shared_ptr<const SubmapStore::Block>;
+  struct Slot {
+    const SubmapStore::Block* block;  // null: no data
+    int index;
   };
-  const Entry& Fetch(int level, const Int3& g);
+  Slot Fetch(int level, const Int3& g);
 
   const LocalMap& map_;
   const SubmapStore& store_;
-  std::unordered_map<Int3, Entry, Int3Hash, Int3Equal> cache_[kMaxLevels];
+  std::unordered_map<Int3, CachedBlock, Int3Hash, Int3Equal> blocks_[kMaxLevels];
+  // The last block used per level: consecutive lookups mostly stay in it.
+  Int3 last_origin_[kMaxLevels];
+  const SubmapStore::Block* last_block_[kMaxLevels] = {};
+  bool last_valid_[kMaxLevels] = {};
   std::vector<float> zeros_;
 };
 

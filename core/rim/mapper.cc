@@ -1,8 +1,11 @@
 #include "rim/mapper.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <mutex>
+#include <thread>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "rim/decoder.h"
@@ -189,31 +192,48 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
   saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
   const int F = geometry_->encoding_dim();
-  std::vector<float> features(n * F), jac(want_gradient ? n * F * 3 : 0),
-      dsdf(want_gradient ? n * F : 0);
   out->sdf.resize(n);
   out->observed.resize(n);
   out->gradient.assign(want_gradient ? 3 * n : 0, 0.f);
-  FeatureReader reader(*local_map_, *store_);
+  // Chunks of points, so that the scratch buffers stay small whatever the batch, spread over up
+  // to train.threads threads for large batches. Every point's answer depends on that point
+  // alone (the plain decoder is batch-independent), so the split does not change any value.
+  constexpr size_t kChunk = 4096;
+  const size_t chunks = (n + kChunk - 1) / kChunk;
   const double inv_s = 1.0 / geometry_->leaf_m();
-  for (size_t i = 0; i < n; ++i) {
-    const Vec3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
-    reader.Encode(p, &features[i * F], want_gradient ? &jac[i * F * 3] : nullptr);
-    const Int3 g0(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
-                  int(std::floor(p.z() * inv_s)));
-    const uint8_t bits = reader.ObservedBits(g0);
-    out->observed[i] = ((bits & LocalMap::kObserved) ? QueryResult::kObservedSurface : 0) |
-                       ((bits & LocalMap::kSeenFree) ? QueryResult::kObservedFree : 0);
-  }
-  decoder_->Forward(features.data(), int(n), out->sdf.data(),
-                    want_gradient ? dsdf.data() : nullptr);
-  if (want_gradient) {
-    // Chain rule: d sdf / d p = (d sdf / d features) · (d features / d p).
-    for (size_t i = 0; i < n; ++i)
-      for (int f = 0; f < F; ++f)
-        for (int a = 0; a < 3; ++a)
-          out->gradient[3 * i + a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
-  }
+  auto run = [&](size_t first, size_t stride) {
+    FeatureReader reader(*local_map_, *store_);
+    std::vector<float> features(kChunk * F), jac(want_gradient ? kChunk * F * 3 : 0),
+        dsdf(want_gradient ? kChunk * F : 0);
+    for (size_t c = first; c < chunks; c += stride) {
+      const size_t begin = c * kChunk, m = std::min(kChunk, n - begin);
+      for (size_t i = 0; i < m; ++i) {
+        const float* q = xyz + 3 * (begin + i);
+        const Vec3d p(q[0], q[1], q[2]);
+        reader.Encode(p, &features[i * F], want_gradient ? &jac[i * F * 3] : nullptr);
+        const Int3 g0(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
+                      int(std::floor(p.z() * inv_s)));
+        const uint8_t bits = reader.ObservedBits(g0);
+        out->observed[begin + i] =
+            ((bits & LocalMap::kObserved) ? QueryResult::kObservedSurface : 0) |
+            ((bits & LocalMap::kSeenFree) ? QueryResult::kObservedFree : 0);
+      }
+      decoder_->Forward(features.data(), int(m), &out->sdf[begin],
+                        want_gradient ? dsdf.data() : nullptr);
+      if (!want_gradient) continue;
+      // Chain rule: d sdf / d p = (d sdf / d features) · (d features / d p).
+      for (size_t i = 0; i < m; ++i) {
+        float* grad = &out->gradient[3 * (begin + i)];
+        for (int f = 0; f < F; ++f)
+          for (int a = 0; a < 3; ++a) grad[a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
+      }
+    }
+  };
+  const size_t threads = std::min<size_t>(size_t(config_.train.threads), chunks);
+  std::vector<std::thread> helpers;
+  for (size_t t = 1; t < threads; ++t) helpers.emplace_back(run, t, threads);
+  run(0, std::max<size_t>(threads, 1));
+  for (std::thread& t : helpers) t.join();
   out->map_version = map_version_.load();
   return absl::OkStatus();
 }

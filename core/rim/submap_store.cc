@@ -88,13 +88,17 @@ void SubmapStore::Write(const SlabBatch& batch) {
     const Int3 local = g - key.cwiseProduct(cells);
     const Int3 block_key = FloorDiv(local, Int3::Constant(B));
     auto [it, inserted] = cached_submap->blocks[l].try_emplace(block_key);
-    Block& block = it->second;
     if (inserted) {
-      block.features.assign(size_t(B) * B * B * D, 0.f);
-      if (l == 0) block.observed.assign(size_t(B) * B * B, 0);
+      it->second = std::make_shared<Block>();
+      it->second->features.assign(size_t(B) * B * B * D, 0.f);
+      if (l == 0) it->second->observed.assign(size_t(B) * B * B, 0);
       cached_submap->bytes += BlockBytes(l);
       host_bytes_ += BlockBytes(l);
+    } else if (it->second.use_count() > 1) {
+      // A reader holds this block (ReadBlock): it keeps its snapshot, the store gets a copy.
+      it->second = std::make_shared<Block>(*it->second);
     }
+    Block& block = *it->second;
     const Int3 in = local - block_key * B;
     const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
     std::memcpy(&block.features[idx * D], &batch.features[i * D], sizeof(float) * D);
@@ -115,9 +119,30 @@ bool SubmapStore::Read(int level, const Int3& g, float* features, uint8_t* obser
   if (it == s->blocks[level].end()) return false;
   const Int3 in = local - block_key * B;
   const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
-  std::memcpy(features, &it->second.features[idx * D], sizeof(float) * D);
-  if (observed) *observed = level == 0 ? it->second.observed[idx] : 0;
+  std::memcpy(features, &it->second->features[idx * D], sizeof(float) * D);
+  if (observed) *observed = level == 0 ? it->second->observed[idx] : 0;
   return true;
+}
+
+SubmapStore::BlockAddress SubmapStore::Address(int level, const Int3& g) const {
+  const int B = config_.block_size;
+  const Int3 key = geometry_.SubmapOfLattice(level, g);
+  const Int3 sub_origin = key.cwiseProduct(geometry_.cells(level));
+  const Int3 block_key = FloorDiv(Int3(g - sub_origin), Int3::Constant(B));
+  const Int3 in = g - sub_origin - block_key * B;
+  return {sub_origin + block_key * B, (in.x() * B + in.y()) * B + in.z()};
+}
+
+std::shared_ptr<const SubmapStore::Block> SubmapStore::ReadBlock(int level, const Int3& g) const {
+  const int B = config_.block_size;
+  const Int3 key = geometry_.SubmapOfLattice(level, g);
+  std::lock_guard<std::mutex> lock(mu_);
+  const Submap* s = FindLocked(key);
+  if (!s || s->state == SubmapState::kOnDisk) return nullptr;
+  const Int3 local = g - key.cwiseProduct(geometry_.cells(level));
+  auto it = s->blocks[level].find(FloorDiv(local, Int3::Constant(B)));
+  if (it == s->blocks[level].end()) return nullptr;
+  return it->second;
 }
 
 std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
@@ -127,7 +152,8 @@ std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
   const Submap* s = FindLocked(key);
   if (!s) return out;
   const Int3 base = key.cwiseProduct(geometry_.cells(0));
-  for (const auto& [block_key, block] : s->blocks[0]) {
+  for (const auto& [block_key, block_ptr] : s->blocks[0]) {
+    const Block& block = *block_ptr;
     for (int x = 0; x < B; ++x)
       for (int y = 0; y < B; ++y)
         for (int z = 0; z < B; ++z) {
@@ -231,7 +257,7 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
   w.I32(config_.block_size);
   for (int l = 0; l < geometry_.levels(); ++l) {
     // Sorted by block key so that the same content always gives the same bytes.
-    std::vector<const std::pair<const Int3, Block>*> blocks;
+    std::vector<const std::pair<const Int3, std::shared_ptr<Block>>*> blocks;
     for (const auto& kv : s.blocks[l]) blocks.push_back(&kv);
     std::sort(blocks.begin(), blocks.end(), [](const auto* a, const auto* b) {
       return std::lexicographical_compare(a->first.data(), a->first.data() + 3, b->first.data(),
@@ -242,8 +268,8 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
       w.I32(kv->first.x());
       w.I32(kv->first.y());
       w.I32(kv->first.z());
-      w.FloatArray(kv->second.features.data(), kv->second.features.size());
-      w.PodVector(kv->second.observed);
+      w.FloatArray(kv->second->features.data(), kv->second->features.size());
+      w.PodVector(kv->second->observed);
     }
   }
   *out = w.Release();
@@ -293,10 +319,10 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
       RIM_RETURN_IF_ERROR(r.I32(&bk.x()));
       RIM_RETURN_IF_ERROR(r.I32(&bk.y()));
       RIM_RETURN_IF_ERROR(r.I32(&bk.z()));
-      Block b;
-      RIM_RETURN_IF_ERROR(r.FloatArray(&b.features));
-      RIM_RETURN_IF_ERROR(r.PodVector(&b.observed));
-      if (b.features.size() != b3 * dim || b.observed.size() != (l == 0 ? b3 : 0))
+      auto b = std::make_shared<Block>();
+      RIM_RETURN_IF_ERROR(r.FloatArray(&b->features));
+      RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));
+      if (b->features.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
         return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
       s.blocks[l].emplace(bk, std::move(b));
       s.bytes += BlockBytes(l);

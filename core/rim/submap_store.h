@@ -37,6 +37,25 @@ class SubmapStore {
   void Write(const SlabBatch& batch);
   // Reads one voxel; false (and nothing written) when the store has no data there.
   bool Read(int level, const Int3& g, float* features, uint8_t* observed) const;
+
+  // Where lattice point g of a level lives: its block, named by the world lattice index of the
+  // block's minimum corner (unique per level), and its index inside the block.
+  struct BlockAddress {
+    Int3 origin;
+    int index;
+  };
+  BlockAddress Address(int level, const Int3& g) const;
+  int block_voxels() const { return config_.block_size * config_.block_size * config_.block_size; }
+
+  struct Block {
+    std::vector<float> features;    // block³ · D, index (x·B + y)·B + z
+    std::vector<uint8_t> observed;  // block³, level 0 only
+  };
+  // The block holding lattice point g, shared and immutable: a later Write to it copies it
+  // first, so a reader may keep using what it got without a lock. Null when the store has no
+  // data there. Readers that visit many neighbouring points pay one lock and one lookup per
+  // block instead of one per point, and copy nothing.
+  std::shared_ptr<const Block> ReadBlock(int level, const Int3& g) const;
   // Finest-level lattice indices of observed voxels stored in a sub-map.
   std::vector<Int3> ObservedCells(const Int3& key) const;
 
@@ -63,12 +82,9 @@ class SubmapStore {
   absl::Status last_error() const;
 
  private:
-  struct Block {
-    std::vector<float> features;    // block³ · D
-    std::vector<uint8_t> observed;  // block³, level 0 only
-  };
   struct Submap {
-    std::unordered_map<Int3, Block, Int3Hash, Int3Equal> blocks[kMaxLevels];
+    // Shared with readers that hold them (ReadBlock): written in place only while unshared.
+    std::unordered_map<Int3, std::shared_ptr<Block>, Int3Hash, Int3Equal> blocks[kMaxLevels];
     uint64_t version = 0;
     SubmapState state = SubmapState::kActive;
     uint64_t last_access = 0;

@@ -228,6 +228,52 @@ TEST_F(SubmapStoreTest, SaveToLoadFromRoundTrip) {
   EXPECT_FALSE(missing.LoadFrom(dir.path() + "/does_not_exist").ok());
 }
 
+// ReadBlock hands out the store's block without a copy; every voxel of it matches Read, and a
+// later Write to it leaves the reader's snapshot alone (copy on write) while the store moves on.
+TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
+  SubmapStore store(geometry_, config_.submap);
+  Reference ref;
+  Fill(&store, &ref);
+  const int D = geometry_.feature_dim();
+  std::vector<float> f(D);
+  int checked = 0;
+  for (const auto& [key, e] : ref) {
+    const auto [l, x, y, z] = key;
+    const Int3 g(x, y, z);
+    auto block = store.ReadBlock(l, g);
+    ASSERT_NE(block, nullptr);
+    const SubmapStore::BlockAddress a = store.Address(l, g);
+    ASSERT_EQ(std::memcmp(&block->features[size_t(a.index) * D], e.features.data(), 4 * D), 0);
+    if (l == 0) {
+      ASSERT_EQ(block->observed[size_t(a.index)], e.observed);
+    }
+    // The block's origin is a block corner that holds g.
+    for (int k = 0; k < 3; ++k) {
+      ASSERT_LE(a.origin[k], g[k]);
+      ASSERT_LT(g[k], a.origin[k] + config_.submap.block_size);
+    }
+    ++checked;
+  }
+  EXPECT_EQ(size_t(checked), ref.size());
+  EXPECT_EQ(store.ReadBlock(0, Int3(100000, 0, 0)), nullptr);
+
+  // Copy on write.
+  const auto& [key, e] = *ref.begin();
+  const auto [l, x, y, z] = key;
+  auto held = store.ReadBlock(l, Int3(x, y, z));
+  const int index = store.Address(l, Int3(x, y, z)).index;
+  SlabBatch batch;
+  batch.level = l;
+  batch.points.push_back(Int3(x, y, z));
+  batch.features.assign(D, 42.f);
+  if (l == 0) batch.observed.push_back(1);
+  store.Write(batch);
+  EXPECT_EQ(std::memcmp(&held->features[size_t(index) * D], e.features.data(), 4 * D), 0);
+  ASSERT_TRUE(store.Read(l, Int3(x, y, z), f.data(), nullptr));
+  EXPECT_EQ(f, std::vector<float>(D, 42.f));
+  EXPECT_NE(store.ReadBlock(l, Int3(x, y, z)).get(), held.get());
+}
+
 TEST_F(SubmapStoreTest, SparseStorageCountsBlocks) {
   const int B = config_.submap.block_size;
   const int D = geometry_.feature_dim();
