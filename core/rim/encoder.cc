@@ -82,8 +82,7 @@ void SparseGradient::Reset(const LocalMap& map) {
   levels_.resize(map.geometry().levels());
   for (int l = 0; l < map.geometry().levels(); ++l) {
     const size_t n = map.level(l).adam_steps.size();
-    levels_[l].stamp.assign(n, 0);
-    levels_[l].row.assign(n, 0);
+    levels_[l].tag.assign(n, Level::Tag{0, 0});
   }
   iteration_ = 0;
 }
@@ -91,7 +90,7 @@ void SparseGradient::Reset(const LocalMap& map) {
 void SparseGradient::BeginIteration() {
   ++iteration_;
   if (iteration_ == 0) {  // wrapped: stale stamps could alias, so clear them once
-    for (Level& lv : levels_) std::fill(lv.stamp.begin(), lv.stamp.end(), 0);
+    for (Level& lv : levels_) std::fill(lv.tag.begin(), lv.tag.end(), Level::Tag{0, 0});
     iteration_ = 1;
   }
   for (Level& lv : levels_) {
@@ -129,21 +128,20 @@ void SparseGradient::ScatterLevel(const LocalMap& map, const LocalEncoding& enc,
       // several cache misses are in flight at once instead of one after the other.
       if (p + kPrefetchPoints < enc.points) {
         const int64_t* ahead = &enc.slots[(size_t(p + kPrefetchPoints) * L + l) * 8];
-        for (int c = 0; c < 8; c += 2) {
-          __builtin_prefetch(&lv.stamp[ahead[c]], 1);
-          __builtin_prefetch(&lv.row[ahead[c]], 1);
-        }
+        // Corners c and c + 1 differ in z only: neighbouring slots, one cache line.
+        for (int c = 0; c < 8; c += 2) __builtin_prefetch(&lv.tag[ahead[c]], 1);
       }
       const float* w = &enc.weights[(size_t(p) * L + l) * 8];
       for (int c = 0; c < 8; ++c) {
         const int64_t slot = slots[c];
-        if (lv.stamp[slot] != iteration_) {
-          lv.stamp[slot] = iteration_;
-          lv.row[slot] = int32_t(lv.touched.size());
+        Level::Tag& tag = lv.tag[slot];
+        if (tag.stamp != iteration_) {
+          tag.stamp = iteration_;
+          tag.row = int32_t(lv.touched.size());
           lv.touched.push_back(slot);
           lv.grad.resize(lv.grad.size() + D, 0.f);
         }
-        float* dst = &lv.grad[size_t(lv.row[slot]) * D];
+        float* dst = &lv.grad[size_t(tag.row) * D];
         for (int d = 0; d < D; ++d) dst[d] += w[c] * g[d];
       }
     }

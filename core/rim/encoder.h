@@ -38,8 +38,13 @@ class SparseGradient {
   void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features,
                WorkerPool* pool = nullptr);
   struct Level {
-    std::vector<uint32_t> stamp;   // per slot
-    std::vector<int32_t> row;      // per slot, valid when stamp == iteration
+    // Per slot, together so that a touch costs one cache miss, not two: whether the slot has a
+    // gradient row this iteration (stamp == iteration) and which row.
+    struct Tag {
+      uint32_t stamp;
+      int32_t row;
+    };
+    std::vector<Tag> tag;
     std::vector<int64_t> touched;  // slots with a gradient row
     std::vector<float> grad;       // touched.size() × D
   };

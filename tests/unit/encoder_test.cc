@@ -204,7 +204,7 @@ TEST_F(EncoderTest, SparseGradientMatchesReferenceAndFiniteDifferences) {
       const int64_t slot = lv.touched[r];
       auto it = ref.find(slot);
       ASSERT_NE(it, ref.end()) << "level " << l << ": slot " << slot << " touched by no point";
-      EXPECT_EQ(lv.row[slot], int32_t(r));
+      EXPECT_EQ(lv.tag[slot].row, int32_t(r));
       for (int d = 0; d < D; ++d) EXPECT_NEAR(lv.grad[r * D + d], it->second[d], 1e-5);
     }
   }
@@ -242,7 +242,7 @@ TEST_F(EncoderTest, SparseGradientMatchesReferenceAndFiniteDifferences) {
       f = f0;
       const double fd = (lp - lm) / (2.0 * step);
       double analytic = 0;
-      if (touched.count(slot)) analytic = lv.grad[size_t(lv.row[slot]) * D + d];
+      if (touched.count(slot)) analytic = lv.grad[size_t(lv.tag[slot].row) * D + d];
       EXPECT_NEAR(analytic, fd, 1e-5) << "level " << l << " slot " << slot << " d " << d;
     }
   }
