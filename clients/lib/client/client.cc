@@ -5,6 +5,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "client/connection.h"
 #include "client/status.h"
@@ -40,7 +41,11 @@ void Connection::Prepare(grpc::ClientContext* context, absl::string_view robot_i
 }
 
 absl::Status Connection::Error(const grpc::Status& status, absl::string_view what) const {
-  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+  // UNAVAILABLE is also what the server itself answers while it shuts down; its own messages
+  // start with "rim_server", and saying "cannot reach" then would send the user looking for a
+  // network problem.
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE &&
+      !absl::StartsWith(status.error_message(), "rim_server ")) {
     return absl::UnavailableError(absl::StrCat("cannot reach rim_server at ", address_, ": ", what,
                                                ": ", status.error_message()));
   }
