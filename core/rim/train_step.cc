@@ -7,6 +7,7 @@
 #include <cstdlib>
 
 #include "absl/strings/str_cat.h"
+#include "rim/encoder.h"
 #include "rim/version.h"
 
 namespace rim {
@@ -86,6 +87,94 @@ absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const Train
     return absl::InternalError(absl::StrCat("training step failed in libtorch: ", e.what()));
   }
   return out;
+}
+
+struct ReferenceTrainer::State {
+  std::vector<torch::Tensor> m, v;  // dense Adam moments per level, like the grids
+  std::vector<float> decoder_m, decoder_v;
+  int64_t step = 0;  // one global step count, as torch::optim::Adam keeps per parameter
+  LocalEncoding encoding;
+};
+
+ReferenceTrainer::ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
+    : config_(config), map_(map), decoder_(decoder), state_(std::make_unique<State>()) {
+  for (int l = 0; l < map->geometry().levels(); ++l) {
+    const int64_t rows = int64_t(map->level(l).adam_steps.size());
+    state_->m.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
+    state_->v.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
+  }
+  state_->decoder_m.assign(decoder->params().size(), 0.f);
+  state_->decoder_v.assign(decoder->params().size(), 0.f);
+}
+
+ReferenceTrainer::~ReferenceTrainer() = default;
+
+absl::StatusOr<float> ReferenceTrainer::Iterate(const float* xyz, const float* labels, int n,
+                                                bool train_decoder) {
+  try {
+    torch::AutoGradMode enable(true);
+    const MapGeometry& geo = map_->geometry();
+    const int L = geo.levels(), D = geo.feature_dim();
+    auto f32 = torch::TensorOptions().dtype(torch::kFloat32);
+    // Corner slots and trilinear weights are geometry only (no parameter): take them from the
+    // encoder, then do the differentiable part, gather and blend, in libtorch.
+    std::vector<float> unused(size_t(n) * geo.encoding_dim());
+    EncodeLocal(*map_, xyz, n, &state_->encoding, unused.data());
+    const torch::Tensor slots =
+        torch::from_blob(state_->encoding.slots.data(), {n, L, 8}, torch::kInt64);
+    const torch::Tensor weights = torch::from_blob(state_->encoding.weights.data(), {n, L, 8}, f32);
+    std::vector<torch::Tensor> grids, per_level;
+    for (int l = 0; l < L; ++l) {
+      LocalMap::Level& lv = map_->level(l);
+      grids.push_back(torch::from_blob(lv.features.data(), {int64_t(lv.adam_steps.size()), D}, f32)
+                          .requires_grad_(true));
+      const torch::Tensor corners =
+          grids.back().index_select(0, slots.select(1, l).reshape({-1})).view({n, 8, D});
+      per_level.push_back((corners * weights.select(1, l).unsqueeze(2)).sum(1));
+    }
+    torch::Tensor h = torch::cat(per_level, 1);
+    std::vector<float> params = decoder_->params();
+    torch::Tensor flat =
+        torch::from_blob(params.data(), {int64_t(params.size())}, f32).requires_grad_(true);
+    const auto& layers = decoder_->layers();
+    for (size_t k = 0; k < layers.size(); ++k) {
+      const auto& Lk = layers[k];
+      torch::Tensor W =
+          flat.narrow(0, int64_t(Lk.weight_offset), int64_t(Lk.in) * Lk.out).view({Lk.out, Lk.in});
+      h = torch::addmm(flat.narrow(0, int64_t(Lk.bias_offset), Lk.out), h, W.t());
+      if (k + 1 < layers.size()) h = torch::relu(h);
+    }
+    const float inv_sigma = 1.f / config_.train.sigma_m;
+    const torch::Tensor target =
+        torch::sigmoid(-torch::from_blob(const_cast<float*>(labels), {n}, f32) * inv_sigma);
+    torch::Tensor loss = torch::binary_cross_entropy_with_logits(-h.squeeze(1) * inv_sigma, target);
+    loss.backward();
+
+    // Dense Adam over every row of every grid, and over the decoder.
+    torch::NoGradGuard no_grad;
+    const TrainConfig& t = config_.train;
+    const int64_t step = ++state_->step;
+    const double bc1 = 1.0 - std::pow(double(t.adam_beta1), double(step));
+    const double bc2 = 1.0 - std::pow(double(t.adam_beta2), double(step));
+    const float step_size = float(double(t.learning_rate) / bc1);
+    const float inv_sqrt_bc2 = float(1.0 / std::sqrt(bc2));
+    auto adam = [&](torch::Tensor p, const torch::Tensor& g, torch::Tensor m, torch::Tensor v) {
+      m.mul_(t.adam_beta1).add_(g, 1.f - t.adam_beta1);
+      v.mul_(t.adam_beta2).addcmul_(g, g, 1.f - t.adam_beta2);
+      p.sub_(step_size * m / (v.sqrt() * inv_sqrt_bc2 + t.adam_eps));
+    };
+    for (int l = 0; l < L; ++l) adam(grids[l], grids[l].grad(), state_->m[l], state_->v[l]);
+    if (train_decoder) {
+      const int64_t P = int64_t(params.size());
+      adam(torch::from_blob(decoder_->params().data(), {P}, f32), flat.grad(),
+           torch::from_blob(state_->decoder_m.data(), {P}, f32),
+           torch::from_blob(state_->decoder_v.data(), {P}, f32));
+    }
+    return loss.item<float>();
+  } catch (const std::exception& e) {
+    return absl::InternalError(
+        absl::StrCat("reference training step failed in libtorch: ", e.what()));
+  }
 }
 
 }  // namespace rim

@@ -2,10 +2,13 @@
 // The only core translation unit that includes libtorch.
 #pragma once
 
+#include <memory>
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "rim/config.h"
 #include "rim/decoder.h"
+#include "rim/local_map.h"
 
 namespace rim {
 
@@ -33,5 +36,30 @@ struct TrainStepOutput {
 // so that it stays finite for any SDF, plus the optional eikonal term w·mean((|∇f|−1)²).
 // Converts libtorch exceptions to a status.
 absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const TrainStepInput& in);
+
+// The reference training iteration, written the way a PyTorch implementation does it: the
+// encoding as libtorch ops (gather of the 8 corners per level, trilinear weights) over the dense
+// grids of the local map as leaf tensors, the loss and backward through autograd, and a dense
+// Adam step over every row of every grid and the decoder with one global step count. It is
+// slow on purpose (it touches the whole local map each iteration) and serves as the correctness
+// reference for Trainer's fast path: on a batch whose touched rows are the same each iteration,
+// lazy Adam with per-row step counts and dense Adam with a global one give the same updates, so
+// tests can compare losses and parameters; `Iteration/reference` in rim_bench measures the
+// ratio. Without the eikonal term (the fast path's probes are not built here).
+class ReferenceTrainer {
+ public:
+  ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder);
+  ~ReferenceTrainer();
+  // One iteration on n samples (xyz: 3n floats inside the box; labels: n); updates the map's
+  // features and, when train_decoder, the decoder's parameters in place. Returns the loss.
+  absl::StatusOr<float> Iterate(const float* xyz, const float* labels, int n, bool train_decoder);
+
+ private:
+  struct State;
+  MapperConfig config_;
+  LocalMap* map_;
+  Decoder* decoder_;
+  std::unique_ptr<State> state_;
+};
 
 }  // namespace rim

@@ -48,9 +48,25 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
     grad_.Reset(*map_);
     grad_ready_ = true;
   }
-  double t0 = Now();
+  const double t0 = Now();
   sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_);
+  if (timing) timing->sample_s += Now() - t0;
+  return TrainOnBatch(train_decoder, timing);
+}
+
+absl::StatusOr<float> Trainer::IterateOn(const SampleBatch& batch, bool train_decoder,
+                                         IterationTiming* timing) {
+  if (!grad_ready_) {
+    grad_.Reset(*map_);
+    grad_ready_ = true;
+  }
+  batch_ = batch;
+  return TrainOnBatch(train_decoder, timing);
+}
+
+absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming* timing) {
   if (batch_.size() == 0) return 0.f;
+  double t0 = Now();
   xyz_ = batch_.xyz;
   if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
   const int rows = int(xyz_.size() / 3);

@@ -28,10 +28,16 @@ class Trainer {
   absl::StatusOr<float> Iterate(const PointBuffer& buffer, const OutsideRays& outside,
                                 bool train_decoder, IterationTiming* timing);
 
+  // One iteration on the given samples instead of sampled ones (the same steps after sampling):
+  // what tests use to run this trainer and the reference on identical batches.
+  absl::StatusOr<float> IterateOn(const SampleBatch& batch, bool train_decoder,
+                                  IterationTiming* timing);
+
   Sampler& sampler() { return sampler_; }
   const SampleBatch& last_batch() const { return batch_; }
 
  private:
+  absl::StatusOr<float> TrainOnBatch(bool train_decoder, IterationTiming* timing);
   void AddEikonalProbes();
   void ApplyFeatureUpdates();
   void MarkObserved();

@@ -9,16 +9,20 @@
 // - BatchedMlp/decoder:0,1: forward, BCE-with-logits gradient and backward of the 1-hidden-layer
 //   decoder as three dense Eigen products over the batch, what a hand-written replacement of
 //   RunTrainStep would cost. Checked against libtorch's feature gradient (max_rel_diff).
+// - Iteration/OnBatch/fast,reference: a whole iteration on the same batch, Trainer's path against
+//   the dense libtorch reference (ReferenceTrainer): the ratio the issue asks for.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <numeric>
 #include <vector>
 
 #include "bench/bench_common.h"
 #include "bench/training_fixture.h"
+#include "rim/train_step.h"
 
 namespace rim::bench {
 namespace {
@@ -156,9 +160,36 @@ void BM_BatchedMlp(benchmark::State& state) {
   f.TrainStep(true);
 }
 
+// One whole training iteration on the fixture's batch (decoder frozen): Trainer's fast path
+// against ReferenceTrainer (libtorch ops over the dense grids, dense Adam over every row). Both
+// leave the touched rows as they found them afterwards.
+void BM_IterationOnBatch(benchmark::State& state, bool reference) {
+  TrainingFixture& f = SharedTrainingFixture();
+  f.SaveOptimiserState();
+  std::unique_ptr<ReferenceTrainer> ref;
+  if (reference)
+    ref = std::make_unique<ReferenceTrainer>(f.config(), &f.map(), &f.mutable_decoder());
+  const SampleBatch& batch = f.batch();
+  for (auto _ : state) {
+    absl::StatusOr<float> loss =
+        reference ? ref->Iterate(batch.xyz.data(), batch.labels.data(), int(batch.size()), false)
+                  : f.trainer().IterateOn(batch, false, nullptr);
+    CheckOk(loss.status(), "iteration");
+    benchmark::DoNotOptimize(*loss);
+  }
+  f.RestoreOptimiserState();
+  state.counters["samples"] = double(batch.size());
+}
+
 }  // namespace
 
 void RegisterReferenceBenchmarks() {
+  benchmark::RegisterBenchmark("Iteration/OnBatch/fast", BM_IterationOnBatch, false)
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
+  benchmark::RegisterBenchmark("Iteration/OnBatch/reference", BM_IterationOnBatch, true)
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
   benchmark::RegisterBenchmark("Reference/AdamFeaturesSlotOrder", BM_AdamFeaturesSlotOrder)
       ->Unit(benchmark::kMillisecond)
       ->UseRealTime();

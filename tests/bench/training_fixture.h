@@ -59,6 +59,7 @@ class TrainingFixture {
   const TrainStepOutput& step_output() const { return step_output_; }
   const std::vector<float>& features() const { return features_; }
   const Decoder& decoder() const { return *decoder_; }
+  Decoder& mutable_decoder() { return *decoder_; }
   SparseGradient& gradient() { return gradient_; }
   AdamBiasTable& bias() { return bias_; }
   // Rows (voxels) with a feature gradient this iteration, summed over levels.
