@@ -14,8 +14,8 @@ PACKAGES=(
   prometheus-cpp-dev libdraco-dev
   # token digests (SHA-256) for rim_server --tokens
   libssl-dev
-  # tests and benchmarks
-  libgtest-dev libgmock-dev libbenchmark-dev prometheus python3-yaml
+  # tests and benchmarks; clang and its libFuzzer runtime for tests/fuzz (RIM_FUZZ=ON)
+  libgtest-dev libgmock-dev libbenchmark-dev prometheus python3-yaml clang libclang-rt-14-dev
   # python client
   python3 python3-numpy python3-grpcio python3-protobuf
 )

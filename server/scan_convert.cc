@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "rim/mapper.h"
 
 namespace rim::server {
 namespace {
@@ -83,6 +84,13 @@ absl::Status ConvertDepth(const rim::v1::DepthImage& depth, size_t max_points, P
   return absl::OkStatus();
 }
 
+// The mapper's own checks last (e.g. a pose beyond 1e6 m): a scan accepted here goes into the
+// write-ahead log, and one that training then refused would also fail every replay of the log.
+absl::StatusOr<PosedScan> Validated(PosedScan scan) {
+  if (absl::Status s = Mapper::ValidateScan(scan); !s.ok()) return s;
+  return scan;
+}
+
 }  // namespace
 
 absl::StatusOr<std::vector<float>> UnpackXyz(const std::string& bytes, const std::string& field,
@@ -135,14 +143,14 @@ absl::StatusOr<PosedScan> ConvertScan(const rim::v1::Scan& scan, size_t max_poin
       out.points_S.resize(n);
       for (size_t i = 0; i < n; ++i)
         out.points_S[i] = Vec3f((*xyz)[3 * i], (*xyz)[3 * i + 1], (*xyz)[3 * i + 2]);
-      return out;
+      return Validated(std::move(out));
     }
     case rim::v1::Scan::kDepth: {
       if (!scan.origins_xyz().empty())
         return absl::InvalidArgumentError("scan.origins_xyz must be empty for a depth image");
       absl::Status s = ConvertDepth(scan.depth(), max_points, &out);
       if (!s.ok()) return s;
-      return out;
+      return Validated(std::move(out));
     }
     default:
       return absl::InvalidArgumentError("scan.points_xyz or scan.depth must be set");

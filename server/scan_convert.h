@@ -15,8 +15,10 @@ namespace rim::server {
 
 // Converts `scan` (points or depth image) into a PosedScan in the sensor frame. Checks: a finite
 // pose with a unit quaternion (within 1e-3), a finite timestamp, packed xyz arrays of a multiple of
-// 12 bytes with finite values, origins empty or one per point, at most `max_points` points, and a
-// depth image whose size, encoding, intrinsics and scale agree.
+// 12 bytes with finite values, origins empty or one per point, at most `max_points` points, a
+// depth image whose size, encoding, intrinsics and scale agree, and last everything
+// Mapper::ValidateScan checks (e.g. a translation within 1e6 m), so that training never refuses a
+// scan accepted here.
 absl::StatusOr<PosedScan> ConvertScan(const rim::v1::Scan& scan, size_t max_points);
 
 // Unpacks packed little-endian float32 xyz triples from `bytes`; `field` names the field in

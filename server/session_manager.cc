@@ -57,6 +57,14 @@ absl::Status SessionManager::CheckHostMemoryBudget() const {
                    Megabytes(budget), " (--host-memory-budget-bytes); save and close sessions"));
 }
 
+uint64_t SessionManager::BudgetLeft() const {
+  const uint64_t budget = options_.host_memory_budget_bytes;
+  if (budget == 0) return 0;
+  const uint64_t used = HostMemoryBytes();
+  // 1, not 0, when nothing is left: 0 means "no budget", and every map needs more than a byte.
+  return used < budget ? budget - used : 1;
+}
+
 absl::Status SessionManager::AdmitUnderBudget(const Session& session) const {
   const uint64_t budget = options_.host_memory_budget_bytes;
   if (budget == 0) return absl::OkStatus();
@@ -109,6 +117,13 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   }
   if (absl::Status s = config->Validate(); !s.ok())
     return absl::InvalidArgumentError(absl::StrCat("overrides: ", s.message()));
+  // Before the mapper allocates its grids, not after (AdmitUnderBudget): overrides may ask for
+  // gigabytes.
+  if (const uint64_t left = BudgetLeft(); left > 0 && Mapper::InitialHostBytes(*config) > left)
+    return absl::ResourceExhaustedError(
+        absl::StrCat("host memory budget: the map of session ", robot_id, " needs ",
+                     Megabytes(Mapper::InitialHostBytes(*config)), ", ", Megabytes(left),
+                     " left of the budget (--host-memory-budget-bytes)"));
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (sessions_.count(robot_id) || pending_.count(robot_id))
@@ -212,7 +227,7 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
       return absl::NotFoundError(absl::StrCat("no saved session for robot_id ", robot_id));
     pending_[robot_id] = true;
   }
-  auto restored = Restore(dir);
+  auto restored = Restore(dir, BudgetLeft());
   std::shared_ptr<Session> shared;
   absl::Status admitted = restored.status();
   if (restored.ok()) {
@@ -229,24 +244,32 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
 }
 
 absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>>
-SessionManager::Restore(const std::string& dir) {
+SessionManager::Restore(const std::string& dir, uint64_t max_host_bytes) {
   // The last checkpoint if there is one, else a fresh map from the session's config...
   std::unique_ptr<Mapper> mapper;
   std::error_code ec;
   if (std::filesystem::exists(dir + "/CURRENT", ec)) {
-    RIM_ASSIGN_OR_RETURN(mapper, Mapper::Load(dir));
+    RIM_ASSIGN_OR_RETURN(mapper, Mapper::Load(dir, max_host_bytes));
   } else {
     RIM_ASSIGN_OR_RETURN(std::string text, ReadFileChecked(dir + "/config.rimf", "CONF"));
     RIM_ASSIGN_OR_RETURN(MapperConfig config, ParseConfigText(text, dir + "/config.rimf"));
+    if (max_host_bytes > 0 && Mapper::InitialHostBytes(config) > max_host_bytes)
+      return absl::ResourceExhaustedError(absl::StrCat(
+          dir, "/config.rimf: the map needs ", Megabytes(Mapper::InitialHostBytes(config)), ", ",
+          Megabytes(max_host_bytes), " left of the host memory budget"));
     RIM_ASSIGN_OR_RETURN(mapper, Mapper::Create(config));
   }
   // ...then every scan accepted after it, from the write-ahead log (§5.3: a kill -9 loses no
   // accepted scan). Replay integrates with the configured iterations.
   RIM_ASSIGN_OR_RETURN(std::unique_ptr<WriteAheadLog> wal, WriteAheadLog::Open(dir + "/wal"));
   Mapper* m = mapper.get();
-  RIM_RETURN_IF_ERROR(wal->Replay(uint64_t(m->frames()), [m](uint64_t, uint64_t, PosedScan scan) {
-    return m->IntegrateScan(scan);
-  }));
+  RIM_RETURN_IF_ERROR(wal->Replay(
+      uint64_t(m->frames()), [m, &dir](uint64_t index, uint64_t, PosedScan scan) -> absl::Status {
+        absl::Status s = m->IntegrateScan(scan);
+        if (s.ok()) return s;
+        return absl::Status(s.code(),
+                            absl::StrCat(dir, "/wal: replaying record ", index, ": ", s.message()));
+      }));
   return std::make_pair(std::move(mapper), std::move(wal));
 }
 

@@ -81,6 +81,8 @@ class SessionManager {
   SessionOptions MakeSessionOptions(const std::string& robot_id) const;
   // After a session was built: RESOURCE_EXHAUSTED if adding it breaks the budget.
   absl::Status AdmitUnderBudget(const Session& session) const;
+  // Host memory the open sessions leave of the budget (at least 1); 0 without a budget.
+  uint64_t BudgetLeft() const;
   // FAILED_PRECONDITION when sessions/ or anything in the session's folder is a symbolic link:
   // session folders never lead out of the data dir.
   absl::Status RefuseLinksToSession(const std::string& robot_id) const;
@@ -88,9 +90,10 @@ class SessionManager {
   absl::StatusOr<std::unique_ptr<Session>> CreateOnDisk(const std::string& robot_id,
                                                         const MapperConfig& config,
                                                         const SessionOptions& options);
-  // The mapper of a saved or crashed session, its log replayed, and the log.
+  // The mapper of a saved or crashed session, its log replayed, and the log. A map needing more
+  // than `max_host_bytes` at start (0: no limit) is RESOURCE_EXHAUSTED before it is allocated.
   static absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>> Restore(
-      const std::string& dir);
+      const std::string& dir, uint64_t max_host_bytes);
 
   const SessionManagerOptions options_;
   std::atomic<bool> stopping_{false};

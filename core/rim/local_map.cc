@@ -82,6 +82,19 @@ void LocalMap::PlaceWithoutLoading(const Int3& coarse_origin) {
   placed_ = true;
 }
 
+int64_t LocalMap::MemoryBytesFor(const MapGeometry& geometry) {
+  int64_t bytes = 0;
+  for (int l = 0; l < geometry.levels(); ++l) {
+    const Int3 dims = geometry.lattice_points(l);
+    const int64_t n = int64_t(dims.x()) * dims.y() * dims.z();
+    // features, adam_m, adam_v (D floats each), adam_steps and flags, as the constructor sizes
+    // them.
+    bytes += n * (3 * int64_t(geometry.feature_dim()) * int64_t(sizeof(float)) +
+                  int64_t(sizeof(int32_t)) + 1);
+  }
+  return bytes;
+}
+
 int64_t LocalMap::MemoryBytes() const {
   int64_t bytes = 0;
   for (const Level& lv : levels_) {

@@ -81,6 +81,8 @@ class LocalMap {
   void ResetSlot(int l, int64_t slot);
   // Bytes held by the dense grids and their optimiser state (constant once constructed).
   int64_t MemoryBytes() const;
+  // The same for a local map of `geometry`, without building one.
+  static int64_t MemoryBytesFor(const MapGeometry& geometry);
 
  private:
   double coarse_m() const { return geometry_.voxel_m(geometry_.levels() - 1); }

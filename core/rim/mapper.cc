@@ -53,7 +53,11 @@ absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Create(const MapperConfig& confi
   return std::unique_ptr<Mapper>(new Mapper(config));
 }
 
-absl::Status Mapper::ValidateScan(const PosedScan& scan) const {
+uint64_t Mapper::InitialHostBytes(const MapperConfig& config) {
+  return uint64_t(LocalMap::MemoryBytesFor(MapGeometry(config.grid)));
+}
+
+absl::Status Mapper::ValidateScan(const PosedScan& scan) {
   const Eigen::Matrix3d R = scan.T_world_sensor.linear();
   const Eigen::Vector3d t = scan.T_world_sensor.translation();
   if (!R.allFinite() || !t.allFinite())
@@ -189,8 +193,10 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
     if (!std::isfinite(xyz[i]) || std::abs(xyz[i]) > 1e6f)
       return absl::InvalidArgumentError(
           absl::StrCat("points[", i / 3, "] is not finite or beyond 1e6 m"));
-  saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
+  // Under the lock, or a slide in between could leave slabs on their way to the store, in
+  // neither the local map nor the store, and read as unobserved zeros.
+  saver_->Flush();
   const int F = geometry_->encoding_dim();
   out->sdf.resize(n);
   out->observed.resize(n);
@@ -259,8 +265,8 @@ absl::StatusOr<Mesh> Mapper::ExtractMeshTile(const Int3& key) const {
 }
 
 std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
-  saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
+  saver_->Flush();  // under the lock, as in QuerySdf
   return rim::ObservedVoxels(MeshTileSource{*geometry_, *local_map_, *store_, *decoder_, mu_}, key);
 }
 

@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 #include <atomic>
 #include <memory>
+#include <mutex>
 #include <shared_mutex>
 #include <string>
 #include <vector>
@@ -81,9 +82,22 @@ struct MapperStats {
 class Mapper {
  public:
   static absl::StatusOr<std::unique_ptr<Mapper>> Create(const MapperConfig& config);
-  // Restores a mapper saved by Save(); a missing or corrupt file is an error naming it.
-  static absl::StatusOr<std::unique_ptr<Mapper>> Load(const std::string& dir);
+  // Restores a mapper saved by Save(); a missing or corrupt file is an error naming it. With
+  // `max_host_bytes` > 0, a checkpoint whose config needs more host memory at start
+  // (InitialHostBytes) is RESOURCE_EXHAUSTED before anything is allocated.
+  static absl::StatusOr<std::unique_ptr<Mapper>> Load(const std::string& dir,
+                                                      uint64_t max_host_bytes = 0);
   ~Mapper();
+
+  // Host memory a new mapper of a valid `config` allocates at once: the dense grids of the local
+  // map with their optimiser state. What it holds later (sub-maps, point buffer) grows with use.
+  static uint64_t InitialHostBytes(const MapperConfig& config);
+
+  // The checks IntegrateScan makes on a scan before changing anything: a finite rigid pose within
+  // 1e6 m of the origin, at least one point, finite points and origins, one origin per point or
+  // none. INVALID_ARGUMENT naming the problem. The service runs them before it accepts a scan, so
+  // that an accepted (logged) scan is never refused by training or by a replay of the log.
+  static absl::Status ValidateScan(const PosedScan& scan);
 
   // Validates and integrates one posed scan (Alg. 1). iterations < 0: the configured number;
   // otherwise clamped to [train.min_iterations, train.iterations]. Invalid input changes nothing.
@@ -117,7 +131,6 @@ class Mapper {
 
  private:
   explicit Mapper(const MapperConfig& config);
-  absl::Status ValidateScan(const PosedScan& scan) const;
   void SlideTo(const Vec3d& position_W);
   void Preprocess(const PosedScan& scan);
   void BumpVersions(bool decoder_changed);
@@ -137,6 +150,9 @@ class Mapper {
 
   // Writers (the training thread) hold it exclusively per step; readers share it.
   mutable std::shared_mutex mu_;
+  // One Save() at a time, whatever the directory: overlapping saves picked the same checkpoint
+  // folder, or pruned each other's (mapper_persistence.cc).
+  mutable std::mutex save_mu_;
   std::atomic<uint64_t> map_version_{0};
   int64_t frames_ = 0;
 };

@@ -4,6 +4,7 @@
 // directory (every file written atomically with a checksum), then switches the `CURRENT` file to
 // it atomically and removes older checkpoints. A crash at any point leaves CURRENT naming a
 // complete checkpoint.
+#include <cmath>
 #include <filesystem>
 #include <mutex>
 
@@ -68,6 +69,17 @@ absl::Status DeserializeLocalMap(ByteReader* r, LocalMap* map) {
   Int3 origin;
   RIM_RETURN_IF_ERROR(r->U8(&placed));
   for (int a = 0; a < 3; ++a) RIM_RETURN_IF_ERROR(r->I32(&origin[a]));
+  // A live box sits where a pose within 1e6 m of the origin put it (Mapper::ValidateScan). A
+  // corrupt origin far beyond would overflow the lattice arithmetic of every later slide, query
+  // and mesh (a signed overflow in LatticeBox, loops that never end).
+  const MapGeometry& g = map->geometry();
+  for (int a = 0; a < 3; ++a) {
+    const double metres = std::abs(double(origin[a])) * g.voxel_m(g.levels() - 1);
+    const int64_t finest = std::abs(int64_t(origin[a])) * g.scale_to_coarse(0) + g.cells(0)[a];
+    if (placed && (metres > 1e6 + g.extent_m()[a] || finest > (int64_t{1} << 30)))
+      return absl::DataLossError(absl::StrCat("local map origin (", origin.x(), ", ", origin.y(),
+                                              ", ", origin.z(), ") is out of range"));
+  }
   if (placed) map->PlaceWithoutLoading(origin);
   for (int l = 0; l < map->geometry().levels(); ++l) {
     LocalMap::Level& lv = map->level(l);
@@ -144,9 +156,17 @@ absl::Status Mapper::LoadState(const std::string& path) {
 }
 
 absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
+  // Saves overlap in the service (periodic checkpoints on the trainer thread, SaveSession and
+  // shutdown on others). Unserialised, two picked the same ckpt-N folder and the store's clean-up
+  // deleted the other's temporary files, or one pruned the folder the other was writing and then
+  // pointed CURRENT at it.
+  std::lock_guard<std::mutex> save_lock(save_mu_);
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
-  saver_->Flush();
   std::shared_lock<std::shared_mutex> lock(mu_);
+  // Under the lock: the trainer may have slid the local map since any earlier flush, and slabs
+  // still on their way to the store would be in neither the local map nor the checkpoint. The
+  // saver thread takes only its own and the store's locks, so waiting here cannot deadlock.
+  saver_->Flush();
   if (frames_saved) *frames_saved = frames_;
   int next = 0;
   std::error_code ec;
@@ -166,13 +186,20 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Load(const std::string& dir) {
+absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Load(const std::string& dir,
+                                                     uint64_t max_host_bytes) {
   RIM_ASSIGN_OR_RETURN(std::string name, ReadFileChecked(dir + "/CURRENT", "CURR"));
   if (CheckpointNumber(name) < 0)
     return absl::DataLossError(absl::StrCat(dir, "/CURRENT names '", name, "', not a checkpoint"));
   const std::string ckpt = dir + "/" + name;
   RIM_ASSIGN_OR_RETURN(std::string config_text, ReadFileChecked(ckpt + "/config.rimf", "CONF"));
   RIM_ASSIGN_OR_RETURN(MapperConfig config, ParseConfigText(config_text, ckpt + "/config.rimf"));
+  // The config decides how much the mapper allocates at once; a damaged or hostile one must not
+  // take the host's memory before any budget is checked.
+  if (max_host_bytes > 0 && InitialHostBytes(config) > max_host_bytes)
+    return absl::ResourceExhaustedError(absl::StrCat(
+        ckpt, "/config.rimf: the map needs ", InitialHostBytes(config), " bytes of host memory, ",
+        "over the ", max_host_bytes, " left in the budget"));
   RIM_ASSIGN_OR_RETURN(std::unique_ptr<Mapper> mapper, Create(config));
   RIM_RETURN_IF_ERROR(mapper->LoadState(ckpt + "/state.rimf"));
   RIM_RETURN_IF_ERROR(mapper->store_->LoadFrom(ckpt + "/submaps"));

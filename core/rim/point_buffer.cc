@@ -2,6 +2,7 @@
 
 #include <sstream>
 
+#include "absl/strings/str_cat.h"
 #include "rim/status_macros.h"
 
 namespace rim {
@@ -71,9 +72,17 @@ absl::Status PointBuffer::Deserialize(ByteReader* r) {
   if (p.size() != o.size() || p.size() % 3 != 0)
     return absl::DataLossError("point buffer: point and origin counts differ");
   std::vector<Vec3f> points(p.size() / 3), origins(o.size() / 3);
+  // What AddFrame can have stored: finite rays no longer than buffer.max_range_m (Preprocess drops
+  // longer ones). Training samples along every ray, and a corrupt origin far away (or NaN) would
+  // put samples where the lattice arithmetic overflows. The slack covers the float transform.
+  const float max_range = config_.max_range_m * 1.001f + 0.01f;
   for (size_t i = 0; i < points.size(); ++i) {
     points[i] = Vec3f(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
     origins[i] = Vec3f(o[3 * i], o[3 * i + 1], o[3 * i + 2]);
+    if (!points[i].allFinite() || !origins[i].allFinite() ||
+        !((points[i] - origins[i]).norm() <= max_range))
+      return absl::DataLossError(absl::StrCat("point buffer: ray ", i,
+                                              " is not finite or longer than buffer.max_range_m"));
   }
   std::istringstream in(rng_state);
   std::mt19937_64 rng;

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 
 #include "absl/strings/numbers.h"
@@ -305,6 +306,15 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
   if (levels != geometry_.levels() || dim != geometry_.feature_dim() || block != config_.block_size)
     return absl::DataLossError(absl::StrCat(context, ": sub-map layout (levels ", levels, ", dim ",
                                             dim, ", block ", block, ") does not match the config"));
+  // Sub-maps of a live map lie within reach of poses within 1e6 m (Mapper::ValidateScan); a corrupt
+  // key far beyond would overflow the lattice arithmetic (key * cells) of every read and mesh.
+  for (int a = 0; a < 3; ++a) {
+    const double metres = std::abs(double(key[a])) * geometry_.extent_m()[a];
+    const int64_t lattice = (std::abs(int64_t(key[a])) + 1) * geometry_.cells(0)[a];
+    if (metres > 1e6 + 2 * geometry_.extent_m()[a] || lattice > (int64_t{1} << 30))
+      return absl::DataLossError(
+          absl::StrCat(context, ": sub-map key ", SubmapKeyName(key), " is out of range"));
+  }
   const size_t b3 = size_t(block) * block * block;
   Submap s;
   s.version = version;
@@ -319,6 +329,11 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
       RIM_RETURN_IF_ERROR(r.I32(&bk.x()));
       RIM_RETURN_IF_ERROR(r.I32(&bk.y()));
       RIM_RETURN_IF_ERROR(r.I32(&bk.z()));
+      // A sub-map owns lattice points [0, cells) from its corner, so blocks [0, (cells - 1) / B].
+      const Int3 last_block = FloorDiv(geometry_.cells(l) - Int3::Ones(), Int3::Constant(block));
+      if ((bk.array() < 0).any() || (bk.array() > last_block.array()).any())
+        return absl::DataLossError(absl::StrCat(context, ": block ", SubmapKeyName(bk),
+                                                " at level ", l, " lies outside its sub-map"));
       auto b = std::make_shared<Block>();
       RIM_RETURN_IF_ERROR(r.FloatArray(&b->features));
       RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));

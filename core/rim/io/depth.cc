@@ -28,6 +28,11 @@ std::vector<Vec3f> BackProjectDepth(const Image16& depth, const CameraIntrinsics
 
 absl::StatusOr<CameraIntrinsics> ReadIntrinsicsMatrixFile(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path, 1 << 20));
+  return ParseIntrinsicsMatrix(data, path);
+}
+
+absl::StatusOr<CameraIntrinsics> ParseIntrinsicsMatrix(absl::string_view data,
+                                                       const std::string& path) {
   std::vector<double> k;
   for (const TextLine& line : SplitLines(data, '#')) {
     RIM_ASSIGN_OR_RETURN(std::vector<double> row, ParseNumbers(line.text, path, line.number));
@@ -62,6 +67,11 @@ absl::StatusOr<CameraIntrinsics> ReadIntrinsicsMatrixFile(const std::string& pat
 
 absl::StatusOr<ReplicaCamera> ReadReplicaCamParams(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path, 1 << 20));
+  return ParseReplicaCamParams(data, path);
+}
+
+absl::StatusOr<ReplicaCamera> ParseReplicaCamParams(absl::string_view data,
+                                                    const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const JsonValue root, ParseJson(data, path));
   if (root.type != JsonValue::Type::kObject) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": expected a JSON object"));

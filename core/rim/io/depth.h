@@ -12,6 +12,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
 #include "rim/io/png_io.h"
 #include "rim/types.h"
 
@@ -48,5 +49,11 @@ struct ReplicaCamera {
   double scale = 0;
 };
 absl::StatusOr<ReplicaCamera> ReadReplicaCamParams(const std::string& path);
+
+// The two files above parsed from bytes already in memory; `path` is only used in messages.
+absl::StatusOr<CameraIntrinsics> ParseIntrinsicsMatrix(absl::string_view data,
+                                                       const std::string& path);
+absl::StatusOr<ReplicaCamera> ParseReplicaCamParams(absl::string_view data,
+                                                    const std::string& path);
 
 }  // namespace rim::io

@@ -13,6 +13,10 @@ namespace rim::io {
 
 absl::StatusOr<PointCloud> ReadKittiBin(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path));
+  return ParseKittiBin(data, path);
+}
+
+absl::StatusOr<PointCloud> ParseKittiBin(absl::string_view data, const std::string& path) {
   if (data.size() % 16 != 0) {
     return absl::DataLossError(absl::StrCat(path, ": size ", data.size(),
                                             " bytes is not a multiple of 16 (float32 x, y, z, "
@@ -48,6 +52,10 @@ absl::Status WriteKittiBin(const std::string& path, const PointCloud& cloud) {
 
 absl::StatusOr<Eigen::Isometry3d> ReadCalibFile(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path, 1 << 20));
+  return ParseCalib(data, path);
+}
+
+absl::StatusOr<Eigen::Isometry3d> ParseCalib(absl::string_view data, const std::string& path) {
   for (const TextLine& line : SplitLines(data, '#')) {
     absl::string_view text = line.text;
     const size_t colon = text.find(':');

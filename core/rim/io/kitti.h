@@ -13,6 +13,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
 #include "rim/io/point_cloud.h"
 
 namespace rim::io {
@@ -28,6 +29,10 @@ absl::Status WriteKittiBin(const std::string& path, const PointCloud& cloud);
 // lines (P0..P3, Tr_imu_velo, ...) are ignored. `Tr_velo_to_cam:` is accepted as a synonym.
 // Errors if the line is missing, malformed or not a rigid transform.
 absl::StatusOr<Eigen::Isometry3d> ReadCalibFile(const std::string& path);
+
+// ReadKittiBin and ReadCalibFile on bytes already in memory; `path` is only used in messages.
+absl::StatusOr<PointCloud> ParseKittiBin(absl::string_view data, const std::string& path);
+absl::StatusOr<Eigen::Isometry3d> ParseCalib(absl::string_view data, const std::string& path);
 
 // Writes a calib.txt with identity P0..P3 (3x4, no intrinsics) and the given `Tr:` line.
 absl::Status WriteCalibFile(const std::string& path, const Eigen::Isometry3d& tr_lidar_to_cam);

@@ -52,7 +52,8 @@ absl::Status WritePcd(const std::string& path, const PointCloud& cloud, PcdDataM
   switch (mode) {
     case PcdDataMode::kAscii:
       for (size_t i = 0; i < n; ++i) {
-        for (int f = 0; f < nf; ++f) absl::StrAppendFormat(&out, f ? " %.9g" : "%.9g", value(i, f));
+        for (int f = 0; f < nf; ++f)
+          absl::StrAppendFormat(&out, "%s%.9g", f ? " " : "", value(i, f));
         out.push_back('\n');
       }
       break;

@@ -310,7 +310,7 @@ absl::Status WritePlyPoints(const std::string& path, const PointCloud& cloud, Pl
   auto value = [&](size_t i, int f) { return f < 3 ? cloud.points[i][f] : cloud.intensity[i]; };
   if (format == PlyFormat::kAscii) {
     for (size_t i = 0; i < n; ++i) {
-      for (int f = 0; f < nf; ++f) absl::StrAppendFormat(&out, f ? " %.9g" : "%.9g", value(i, f));
+      for (int f = 0; f < nf; ++f) absl::StrAppendFormat(&out, "%s%.9g", f ? " " : "", value(i, f));
       out.push_back('\n');
     }
   } else {

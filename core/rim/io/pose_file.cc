@@ -11,9 +11,9 @@
 namespace rim::io {
 namespace {
 
-absl::StatusOr<std::vector<Eigen::Isometry3d>> ReadPoseLines(const std::string& path,
-                                                             size_t per_line, const char* what) {
-  RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path));
+absl::StatusOr<std::vector<Eigen::Isometry3d>> ParsePoseLines(absl::string_view data,
+                                                              const std::string& path,
+                                                              size_t per_line, const char* what) {
   std::vector<Eigen::Isometry3d> poses;
   for (const TextLine& line : SplitLines(data, '#')) {
     RIM_ASSIGN_OR_RETURN(std::vector<double> values,
@@ -68,16 +68,32 @@ absl::StatusOr<Eigen::Isometry3d> RigidFromRowMajor(const std::vector<double>& v
   return pose;
 }
 
+absl::StatusOr<std::vector<Eigen::Isometry3d>> ParsePoses3x4(absl::string_view data,
+                                                             const std::string& path) {
+  return ParsePoseLines(data, path, 12, "3x4 row-major pose");
+}
+
 absl::StatusOr<std::vector<Eigen::Isometry3d>> ReadPoses3x4File(const std::string& path) {
-  return ReadPoseLines(path, 12, "3x4 row-major pose");
+  RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path));
+  return ParsePoses3x4(data, path);
+}
+
+absl::StatusOr<std::vector<Eigen::Isometry3d>> ParsePoses4x4Lines(absl::string_view data,
+                                                                  const std::string& path) {
+  return ParsePoseLines(data, path, 16, "4x4 row-major pose");
 }
 
 absl::StatusOr<std::vector<Eigen::Isometry3d>> ReadPoses4x4LinesFile(const std::string& path) {
-  return ReadPoseLines(path, 16, "4x4 row-major pose");
+  RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path));
+  return ParsePoses4x4Lines(data, path);
 }
 
 absl::StatusOr<Eigen::Isometry3d> ReadPose4x4File(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path, 1 << 20));
+  return ParsePose4x4(data, path);
+}
+
+absl::StatusOr<Eigen::Isometry3d> ParsePose4x4(absl::string_view data, const std::string& path) {
   std::vector<double> values;
   int last_line = 1;
   for (const TextLine& line : SplitLines(data, '#')) {
@@ -101,6 +117,10 @@ absl::StatusOr<Eigen::Isometry3d> ReadPose4x4File(const std::string& path) {
 
 absl::StatusOr<std::vector<double>> ReadTimesFile(const std::string& path) {
   RIM_ASSIGN_OR_RETURN(const std::string data, ReadFileToString(path));
+  return ParseTimes(data, path);
+}
+
+absl::StatusOr<std::vector<double>> ParseTimes(absl::string_view data, const std::string& path) {
   std::vector<double> times;
   for (const TextLine& line : SplitLines(data, '#')) {
     RIM_ASSIGN_OR_RETURN(std::vector<double> v,

@@ -15,6 +15,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
 
 namespace rim::io {
 
@@ -36,6 +37,15 @@ absl::StatusOr<Eigen::Isometry3d> ReadPose4x4File(const std::string& path);
 
 // times.txt: one finite timestamp (seconds) per non-empty line.
 absl::StatusOr<std::vector<double>> ReadTimesFile(const std::string& path);
+
+// The same four formats parsed from bytes already in memory (the Read* functions read the file
+// and call these); `path` is only used in messages.
+absl::StatusOr<std::vector<Eigen::Isometry3d>> ParsePoses3x4(absl::string_view data,
+                                                             const std::string& path);
+absl::StatusOr<std::vector<Eigen::Isometry3d>> ParsePoses4x4Lines(absl::string_view data,
+                                                                  const std::string& path);
+absl::StatusOr<Eigen::Isometry3d> ParsePose4x4(absl::string_view data, const std::string& path);
+absl::StatusOr<std::vector<double>> ParseTimes(absl::string_view data, const std::string& path);
 
 // Writes poses as 3x4 row-major lines with 17 significant digits (exact double round trip).
 absl::Status WritePosesFile(const std::string& path, const std::vector<Eigen::Isometry3d>& poses);
