@@ -20,6 +20,7 @@
 #include <string>
 #include <thread>
 
+#include "absl/cleanup/cleanup.h"
 #include "rim/version.h"
 #include "server/compute_scheduler.h"
 #include "server/metrics.h"
@@ -115,6 +116,9 @@ int Run(int argc, char** argv) {
   manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
   rim::server::SessionManager sessions(manager_options);
   metrics.WatchSessions(&sessions);
+  // Declared after `sessions`, so it runs before `sessions` is destroyed on every way out of Run:
+  // a scrape arriving then would otherwise read a destroyed SessionManager.
+  const absl::Cleanup stop_metrics = [&metrics] { metrics.StopServing(); };
   if (!config->metrics.empty()) {
     auto metrics_port = metrics.Serve(config->metrics);
     if (!metrics_port.ok()) {

@@ -301,6 +301,8 @@ absl::StatusOr<int> ServerMetrics::Serve(const std::string& address) {
   return ports[0];
 }
 
+void ServerMetrics::StopServing() { exposer_.reset(); }
+
 std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>>
 ServerMetrics::InterceptorFactories() {
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> out;

@@ -37,6 +37,9 @@ class ServerMetrics : public SessionEvents {
   // Starts the HTTP exposer on `address` (host:port; port 0 picks one) and returns the bound
   // port. INVALID_ARGUMENT for an address it cannot bind.
   absl::StatusOr<int> Serve(const std::string& address);
+  // Stops the HTTP exposer and waits for a scrape in progress. Call it before the watched
+  // SessionManager is destroyed: a scrape reads it.
+  void StopServing();
   // Interceptor factories counting every RPC, for ServerBuilder::experimental().
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>>
   InterceptorFactories();

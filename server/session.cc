@@ -143,10 +143,11 @@ void Session::Drain() {
 void Session::Close() {
   {
     std::lock_guard<std::mutex> lock(mu_);
-    if (closing_ && !trainer_.joinable()) return;
     closing_ = true;
   }
   cv_.notify_all();
+  // Every caller returns only once the trainer has stopped; the first one joins it.
+  std::lock_guard<std::mutex> lock(join_mu_);
   if (trainer_.joinable()) trainer_.join();
 }
 

@@ -88,7 +88,8 @@ class Session {
   uint64_t WaitForIntegrated(uint64_t seen, std::chrono::milliseconds timeout, bool* closed);
   // Waits until every queued scan is integrated.
   void Drain();
-  // Stops accepting, drains, stops the trainer. Idempotent.
+  // Stops accepting, drains, stops the trainer. Idempotent; callable from several threads at once,
+  // each returning once the trainer has stopped.
   void Close();
 
   // Iterations the trainer will use for the next frame, given the queue depth: the configured
@@ -133,6 +134,9 @@ class Session {
   SessionStats stats_;
   absl::Status last_checkpoint_;
   TileCache tiles_;
+  // Held while joining trainer_, so that concurrent Close() calls neither race on the thread
+  // object nor join it twice.
+  std::mutex join_mu_;
   std::thread trainer_;
 };
 

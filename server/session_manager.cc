@@ -188,20 +188,33 @@ absl::Status SessionManager::SaveLocked(Session& session) {
 }
 
 absl::Status SessionManager::Close(const std::string& robot_id, bool save) {
+  if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
   std::shared_ptr<Session> session;
   {
-    auto found = Get(robot_id);
-    if (!found.ok()) return found.status();
+    // Found and removed in one step, so that of two concurrent closes (a client retrying) the
+    // second is NOT_FOUND rather than closing, saving or deleting the session a second time. The
+    // id stays pending until the close is done: a Create or Load of it must not start on the
+    // folder this close is still saving or deleting.
     std::lock_guard<std::mutex> lock(mu_);
-    sessions_.erase(robot_id);
-    session = *found;
+    auto it = sessions_.find(robot_id);
+    if (it == sessions_.end())
+      return absl::NotFoundError(absl::StrCat("no session for robot_id ", robot_id));
+    session = std::move(it->second);
+    sessions_.erase(it);
+    pending_[robot_id] = true;
   }
   session->Close();  // drains first: everything accepted is in the map before saving
-  if (save) return SaveLocked(*session);
-  // Closed without saving: the session is discarded, its log and config with it.
-  std::error_code ec;
-  std::filesystem::remove_all(AbsoluteDir(robot_id), ec);
-  return absl::OkStatus();
+  absl::Status closed;
+  if (save) {
+    closed = SaveLocked(*session);
+  } else {
+    // Closed without saving: the session is discarded, its log and config with it.
+    std::error_code ec;
+    std::filesystem::remove_all(AbsoluteDir(robot_id), ec);
+  }
+  std::lock_guard<std::mutex> lock(mu_);
+  pending_.erase(robot_id);
+  return closed;
 }
 
 absl::StatusOr<std::string> SessionManager::Save(const std::string& robot_id) {

@@ -62,7 +62,9 @@ TEST(ClientWireTest, ScanToProtoNormalisesADriftedRotation) {
   // which the server requires within 1e-3.
   PosedScan scan = MakeScan();
   scan.T_world_sensor.linear() *= 1.01;
-  const auto& q = ScanToProto(scan, "r", 0).pose().rotation();
+  // The message is kept whole: a reference into a temporary's pose would dangle (ASan caught it).
+  const rim::v1::Scan wire = ScanToProto(scan, "r", 0);
+  const rim::v1::Quaternion& q = wire.pose().rotation();
   EXPECT_NEAR(std::sqrt(q.w() * q.w() + q.x() * q.x() + q.y() * q.y() + q.z() * q.z()), 1.0, 1e-9);
 }
 
@@ -95,7 +97,9 @@ TEST(ClientStatusTest, KeepsTheServersCodeAndMessage) {
 }
 
 TEST(ClientStatusTest, UnknownCodesNeverReadAsOk) {
-  const absl::Status s = FromGrpc(grpc::Status(static_cast<grpc::StatusCode>(99), "future"));
+  // 31, not a larger number: grpc::StatusCode has no fixed underlying type, so only values that
+  // fit its enumerators' bits (-32..31) are valid; making a larger one is undefined behaviour.
+  const absl::Status s = FromGrpc(grpc::Status(static_cast<grpc::StatusCode>(31), "future"));
   EXPECT_EQ(s.code(), absl::StatusCode::kUnknown);
   EXPECT_EQ(s.message(), "future");
 }

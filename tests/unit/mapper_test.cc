@@ -5,12 +5,12 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <mutex>
 #include <set>
 #include <thread>
 
@@ -288,15 +288,20 @@ TEST_F(MapperTest, ConcurrentSavesAllSucceedAndLeaveOneLoadableCheckpoint) {
   const std::string dir = ::testing::TempDir() + "/rim_mapper_concurrent_saves";
   std::filesystem::remove_all(dir);
   constexpr int kThreads = 4, kSavesPerThread = 5;
-  std::atomic<int> failed{0};
+  std::mutex mu;
+  int failed = 0;
+  absl::Status first_error;
   std::vector<std::thread> threads;
   for (int t = 0; t < kThreads; ++t)
     threads.emplace_back([&] {
-      for (int i = 0; i < kSavesPerThread; ++i)
-        if (!mapper_->Save(dir).ok()) ++failed;
+      for (int i = 0; i < kSavesPerThread; ++i) {
+        absl::Status saved = mapper_->Save(dir);
+        std::lock_guard<std::mutex> lock(mu);
+        if (!saved.ok() && failed++ == 0) first_error = saved;
+      }
     });
   for (std::thread& t : threads) t.join();
-  EXPECT_EQ(failed.load(), 0);
+  EXPECT_EQ(failed, 0) << "first error: " << first_error;
   auto loaded = Mapper::Load(dir);
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   EXPECT_EQ((*loaded)->frames(), mapper_->frames());

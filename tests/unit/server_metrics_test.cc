@@ -1,5 +1,10 @@
 // ServerMetrics (server/metrics.h): the exposition text carries what the hooks were told, under
 // the names of docs/metrics.md, with the labels it documents.
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <string>
 
 #include "gmock/gmock.h"
@@ -11,6 +16,19 @@ namespace {
 
 using ::testing::HasSubstr;
 using ::testing::Not;
+
+// True when something accepts TCP connections on 127.0.0.1:port.
+bool Connects(int port) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return false;
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(uint16_t(port));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  const bool ok = connect(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof(addr)) == 0;
+  close(fd);
+  return ok;
+}
 
 TEST(ServerMetricsTest, MethodNamesDropTheRimServicePrefix) {
   EXPECT_EQ(MetricMethodName("/rim.v1.Rim/CreateSession"), "CreateSession");
@@ -75,6 +93,18 @@ TEST(ServerMetricsTest, ServeRefusesAnAddressItCannotBind) {
   auto bound = ok.Serve("127.0.0.1:0");
   ASSERT_TRUE(bound.ok()) << bound.status();
   EXPECT_GT(*bound, 0);
+}
+
+// rim_server stops the exposer before the SessionManager that scrapes read is destroyed; after
+// StopServing nothing answers on the port.
+TEST(ServerMetricsTest, StopServingClosesThePort) {
+  ServerMetrics m(0);
+  auto port = m.Serve("127.0.0.1:0");
+  ASSERT_TRUE(port.ok()) << port.status();
+  EXPECT_TRUE(Connects(*port));
+  m.StopServing();
+  EXPECT_FALSE(Connects(*port));
+  m.StopServing();  // a second call does nothing
 }
 
 }  // namespace

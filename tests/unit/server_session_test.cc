@@ -9,8 +9,10 @@
 #include <vector>
 
 #include "server/session.h"
+#include "server/session_manager.h"
 #include "server/tile_cache.h"
 #include "support/analytic_scene.h"
+#include "support/small_session.h"
 #include "support/temp_dir.h"
 
 namespace rim::server {
@@ -118,6 +120,52 @@ TEST(SessionTest, CloseDrainsEveryAcceptedScanThenRefuses) {
   EXPECT_EQ((*session)->mapper().frames(), 6);
   EXPECT_EQ((*session)->Submit(7, Scan(0.f), nullptr).code(),
             absl::StatusCode::kFailedPrecondition);
+}
+
+// Concurrent Close() calls used to read the trainer's thread object while another call joined it,
+// and could join it twice.
+TEST(SessionTest, ConcurrentClosesEachReturnAfterTheTrainerStopped) {
+  SessionOptions options;
+  options.queue_length = 8;
+  auto session = Session::Create("robot_f", SmallConfig(), options);
+  ASSERT_TRUE(session.ok());
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE((*session)->Submit(uint64_t(i), Scan(0.f), nullptr).ok());
+  std::vector<std::thread> closers;
+  std::atomic<int> returned_early{0};
+  for (int t = 0; t < 4; ++t)
+    closers.emplace_back([&] {
+      (*session)->Close();
+      if ((*session)->mapper().frames() != 4) ++returned_early;
+    });
+  for (std::thread& t : closers) t.join();
+  EXPECT_EQ(returned_early.load(), 0);
+}
+
+// A client that retries CloseSession sends two at once: one closes (and here saves) the session,
+// the other finds nothing to close. Both used to go on to close and save (or delete) the same
+// session, joining its trainer twice.
+TEST(SessionManagerTest, ConcurrentClosesOfOneSessionCloseItOnce) {
+  SessionManagerOptions options;
+  options.data_dir = testing_support::MakeTempDir("rim_manager_close");
+  SessionManager manager(options);
+  auto session = manager.Create("robot_g", "", testing_support::SmallMapOverrides());
+  ASSERT_TRUE(session.ok()) << session.status();
+  for (int i = 0; i < 4; ++i)
+    ASSERT_TRUE(
+        (*session)->Submit(uint64_t(i), testing_support::GroundScan(0.05 * i), nullptr).ok());
+  session->reset();
+  std::vector<absl::Status> closed(2);
+  std::vector<std::thread> closers;
+  for (size_t t = 0; t < closed.size(); ++t)
+    closers.emplace_back([&, t] { closed[t] = manager.Close("robot_g", /*save=*/true); });
+  for (std::thread& t : closers) t.join();
+  const int ok = int(closed[0].ok()) + int(closed[1].ok());
+  EXPECT_EQ(ok, 1) << closed[0] << " / " << closed[1];
+  for (const absl::Status& s : closed)
+    if (!s.ok()) EXPECT_EQ(s.code(), absl::StatusCode::kNotFound) << s;
+  auto loaded = manager.Load("robot_g");
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ((*loaded)->mapper().frames(), 4);
 }
 
 TEST(TileCacheTest, ReencodesOnlyWhenTheVersionMoves) {
