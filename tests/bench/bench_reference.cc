@@ -10,7 +10,7 @@
 //   decoder as three dense Eigen products over the batch, what a hand-written replacement of
 //   RunTrainStep would cost. Checked against libtorch's feature gradient (max_rel_diff).
 // - Iteration/OnBatch/fast,reference: a whole iteration on the same batch, Trainer's path against
-//   the dense libtorch reference (ReferenceTrainer): the ratio the issue asks for.
+//   the dense libtorch reference (ReferenceTrainer), side by side.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Core>

@@ -13,6 +13,7 @@
 #include "fuzz_util.h"
 #include "server/service.h"
 #include "server/session_manager.h"
+#include "support/small_session.h"
 
 namespace rim::fuzz {
 
@@ -39,15 +40,7 @@ inline std::vector<std::pair<std::string, std::string>> TinyMapOverrides() {
 }
 
 // 81 returns 25 cm apart on a floor 0.6 m below a sensor at (x, 0, 0): inside the tiny map's box.
-inline PosedScan TinyScan(double x) {
-  PosedScan scan;
-  scan.T_world_sensor = Eigen::Isometry3d::Identity();
-  scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
-  for (int i = 0; i < 9; ++i)
-    for (int j = 0; j < 9; ++j)
-      scan.points_S.emplace_back(-1.f + 0.25f * i, -1.f + 0.25f * j, -0.6f);
-  return scan;
-}
+inline PosedScan TinyScan(double x) { return testing_support::FloorScan(x, 9, 0.25f, 0.6f); }
 
 // A session manager as rim_server builds one (session_manager.h), over its own scratch data
 // directory, with the server's default limits except a host memory budget: a session file that

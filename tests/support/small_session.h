@@ -22,16 +22,21 @@ inline std::vector<std::pair<std::string, std::string>> SmallMapOverrides() {
           {"sampler.rays_per_iteration", "512"}};
 }
 
-// 40 x 40 returns 7.5 cm apart on the ground 1 m below a sensor at (x, 0, 0).
-inline PosedScan GroundScan(double x) {
+// n × n returns `spacing` apart on a floor `depth` below a sensor at (x, 0, 0), from
+// −(n / 2)·spacing on each horizontal axis.
+inline PosedScan FloorScan(double x, int n, float spacing, float depth) {
   PosedScan scan;
   scan.T_world_sensor = Eigen::Isometry3d::Identity();
   scan.T_world_sensor.translation() = Vec3d(x, 0, 0);
-  for (int i = 0; i < 40; ++i)
-    for (int j = 0; j < 40; ++j)
-      scan.points_S.emplace_back(-1.5f + 0.075f * i, -1.5f + 0.075f * j, -1.f);
+  const float start = -float(n / 2) * spacing;
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j)
+      scan.points_S.emplace_back(start + spacing * i, start + spacing * j, -depth);
   return scan;
 }
+
+// 40 x 40 returns 7.5 cm apart on the ground 1 m below a sensor at (x, 0, 0).
+inline PosedScan GroundScan(double x) { return FloorScan(x, 40, 0.075f, 1.f); }
 
 // `n` ground scans 5 cm apart along x.
 inline std::vector<PosedScan> GroundScans(int n) {
