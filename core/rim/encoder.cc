@@ -43,14 +43,14 @@ void EncodeRange(const LocalMap& map, int l, const float* xyz, int begin, int en
   for (int p = begin; p < end; ++p) {
     if (p + kAhead < end) {
       const int64_t* ahead = &enc->slots[(size_t(p + kAhead) * L + l) * 8];
-      for (int c = 0; c < 8; ++c) __builtin_prefetch(&lv.features[ahead[c] * D]);
+      for (int c = 0; c < 8; ++c) __builtin_prefetch(lv.features(ahead[c]));
     }
     const int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
     const float* w = &enc->weights[(size_t(p) * L + l) * 8];
     float* out = features + size_t(p) * L * D + size_t(l) * D;
     std::fill_n(out, D, 0.f);
     for (int c = 0; c < 8; ++c) {
-      const float* feat = &lv.features[slots[c] * D];
+      const float* feat = lv.features(slots[c]);
       for (int d = 0; d < D; ++d) out[d] += w[c] * feat[d];
     }
   }
@@ -78,24 +78,12 @@ void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* en
   }
 }
 
-void SparseGradient::Reset(const LocalMap& map) {
-  levels_.resize(map.geometry().levels());
-  for (int l = 0; l < map.geometry().levels(); ++l) {
-    const size_t n = map.level(l).adam_steps.size();
-    levels_[l].tag.assign(n, Level::Tag{0, 0});
-  }
-  iteration_ = 0;
-}
+void SparseGradient::Reset(const LocalMap& map) { levels_.resize(map.geometry().levels()); }
 
-void SparseGradient::BeginIteration() {
-  ++iteration_;
-  if (iteration_ == 0) {  // wrapped: stale stamps could alias, so clear them once
-    for (Level& lv : levels_) std::fill(lv.tag.begin(), lv.tag.end(), Level::Tag{0, 0});
-    iteration_ = 1;
-  }
+void SparseGradient::BeginIteration(LocalMap* map) {
+  stamp_ = map->NextScatterStamp();
   for (Level& lv : levels_) {
     lv.touched.clear();
-    lv.grad.clear();
   }
 }
 
@@ -103,10 +91,10 @@ namespace {
 constexpr int kPrefetchPoints = 4;
 }  // namespace
 
-void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
-                             const float* grad_features, WorkerPool* pool) {
-  const int L = map.geometry().levels();
-  // Levels have their own stamps, rows and gradients: one task per level, in a fixed order
+void SparseGradient::Scatter(LocalMap* map, const LocalEncoding& enc, const float* grad_features,
+                             WorkerPool* pool) {
+  const int L = map->geometry().levels();
+  // Levels have their own slots, rows and gradients: one task per level, in a fixed order
   // within each, so the result does not depend on the thread count.
   if (pool) {
     pool->Run(L, [&](int l) { ScatterLevel(map, enc, grad_features, l); });
@@ -115,33 +103,39 @@ void SparseGradient::Scatter(const LocalMap& map, const LocalEncoding& enc,
   }
 }
 
-void SparseGradient::ScatterLevel(const LocalMap& map, const LocalEncoding& enc,
+void SparseGradient::ScatterLevel(LocalMap* map, const LocalEncoding& enc,
                                   const float* grad_features, int l) {
-  const int L = map.geometry().levels(), D = map.geometry().feature_dim();
-  {
-    Level& lv = levels_[l];
-    lv.grad.reserve(size_t(enc.points) * 8 * D);  // at most 8 new rows per point
-    for (int p = 0; p < enc.points; ++p) {
-      const float* g = grad_features + size_t(p) * L * D + size_t(l) * D;
-      const int64_t* slots = &enc.slots[(size_t(p) * L + l) * 8];
-      // The slots are scattered over the dense grid: ask for a later point's stamps now so that
-      // several cache misses are in flight at once instead of one after the other.
-      if (p + kPrefetchPoints < enc.points) {
-        const int64_t* ahead = &enc.slots[(size_t(p + kPrefetchPoints) * L + l) * 8];
-        // Corners c and c + 1 differ in z only: neighbouring slots, one cache line.
-        for (int c = 0; c < 8; c += 2) __builtin_prefetch(&lv.tag[ahead[c]], 1);
+  const int L = map->geometry().levels(), D = map->geometry().feature_dim();
+  LocalMap::Level& grid = map->level(l);
+  Level& lv = levels_[l];
+  // At most 8 new rows per point. Sized once for the largest batch seen and never shrunk, so
+  // that a new row costs a D-float clear rather than a vector growth; rows beyond touched.size()
+  // are stale.
+  if (lv.grad.size() < size_t(enc.points) * 8 * D) lv.grad.resize(size_t(enc.points) * 8 * D);
+  for (int p = 0; p < enc.points; ++p) {
+    const float* g = grad_features + size_t(p) * L * D + size_t(l) * D;
+    const int64_t* slots = &enc.slots[(size_t(p) * L + l) * 8];
+    // The slots are scattered over the dense grid: ask for a later point's tags now so that
+    // several cache misses are in flight at once instead of one after the other.
+    if (p + kPrefetchPoints < enc.points) {
+      const int64_t* ahead = &enc.slots[(size_t(p + kPrefetchPoints) * L + l) * 8];
+      // Corners c and c + 1 differ in z only: neighbouring slots, one cache line.
+      for (int c = 0; c < 8; c += 2) __builtin_prefetch(&grid.scatter_tag(ahead[c]), 1);
+    }
+    const float* w = &enc.weights[(size_t(p) * L + l) * 8];
+    for (int c = 0; c < 8; ++c) {
+      const int64_t slot = slots[c];
+      LocalMap::ScatterTag& tag = grid.scatter_tag(slot);
+      if (tag.stamp != stamp_) {
+        tag.stamp = stamp_;
+        tag.row = int32_t(lv.touched.size());
+        std::fill_n(&lv.grad[lv.touched.size() * D], D, 0.f);
+        lv.touched.push_back(slot);
       }
-      const float* w = &enc.weights[(size_t(p) * L + l) * 8];
-      for (int c = 0; c < 8; ++c) {
-        const int64_t slot = slots[c];
-        Level::Tag& tag = lv.tag[slot];
-        if (tag.stamp != iteration_) {
-          tag.stamp = iteration_;
-          tag.row = int32_t(lv.touched.size());
-          lv.touched.push_back(slot);
-          lv.grad.resize(lv.grad.size() + D, 0.f);
-        }
-        float* dst = &lv.grad[size_t(tag.row) * D];
+      float* dst = &lv.grad[size_t(tag.row) * D];
+      if (D == 8) {  // every preset: a fixed-length loop the compiler unrolls
+        for (int d = 0; d < 8; ++d) dst[d] += w[c] * g[d];
+      } else {
         for (int d = 0; d < D; ++d) dst[d] += w[c] * g[d];
       }
     }
@@ -169,7 +163,7 @@ FeatureReader::Slot FeatureReader::Fetch(int level, const Int3& g) {
 
 const float* FeatureReader::Get(int level, const Int3& g) {
   if (map_.InBox(level, g)) {
-    return &map_.level(level).features[map_.Slot(level, g) * map_.geometry().feature_dim()];
+    return map_.level(level).features(map_.Slot(level, g));
   }
   const Slot s = Fetch(level, g);
   if (s.block == nullptr) return zeros_.data();
@@ -177,7 +171,7 @@ const float* FeatureReader::Get(int level, const Int3& g) {
 }
 
 uint8_t FeatureReader::ObservedBits(const Int3& g0) {
-  if (map_.InBox(0, g0)) return map_.level(0).flags[map_.Slot(0, g0)] & LocalMap::kObservedBits;
+  if (map_.InBox(0, g0)) return map_.level(0).flags(map_.Slot(0, g0)) & LocalMap::kObservedBits;
   const Slot s = Fetch(0, g0);
   if (s.block == nullptr) return 0;
   return s.block->observed[size_t(s.index)] & LocalMap::kObservedBits;

@@ -28,34 +28,32 @@ void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* en
                  WorkerPool* pool = nullptr);
 
 // Accumulates feature gradients of the voxels a batch touched, per level, without touching
-// anything else: per-slot stamps say whether a slot already has a row this iteration.
+// anything else. Whether a slot already has a row this iteration, and which, is marked in the
+// level's scatter tags (LocalMap::ScatterTag).
 class SparseGradient {
  public:
-  void Reset(const LocalMap& map);  // sizes the stamp arrays once; cheap afterwards
-  void BeginIteration();
-  // grad_features: points × L·D, as produced by the loss backward.
-  // With a pool, one level per task.
-  void Scatter(const LocalMap& map, const LocalEncoding& enc, const float* grad_features,
+  void Reset(const LocalMap& map);  // sizes the per-level row tables
+  void BeginIteration(LocalMap* map);
+  // grad_features: points × L·D, as produced by the loss backward. Writes the scatter marks of
+  // the touched slots. With a pool, one level per task.
+  void Scatter(LocalMap* map, const LocalEncoding& enc, const float* grad_features,
                WorkerPool* pool = nullptr);
   struct Level {
-    // Per slot, together so that a touch costs one cache miss, not two: whether the slot has a
-    // gradient row this iteration (stamp == iteration) and which row.
-    struct Tag {
-      uint32_t stamp;
-      int32_t row;
-    };
-    std::vector<Tag> tag;
-    std::vector<int64_t> touched;  // slots with a gradient row
-    std::vector<float> grad;       // touched.size() × D
+    std::vector<int64_t> touched;  // slots with a gradient row, in first-touch order
+    std::vector<float> grad;       // row r at [r·D, (r+1)·D) for r < touched.size()
   };
   Level& level(int l) { return levels_[l]; }
+  // Row of `slot` this iteration, or -1 when the batch did not touch it.
+  int32_t RowOf(const LocalMap& map, int l, int64_t slot) const {
+    const LocalMap::ScatterTag& tag = map.level(l).scatter_tag(slot);
+    return tag.stamp == stamp_ ? tag.row : -1;
+  }
 
  private:
-  void ScatterLevel(const LocalMap& map, const LocalEncoding& enc, const float* grad_features,
-                    int l);
+  void ScatterLevel(LocalMap* map, const LocalEncoding& enc, const float* grad_features, int l);
 
   std::vector<Level> levels_;
-  uint32_t iteration_ = 0;
+  uint32_t stamp_ = 0;
 };
 
 // Reads features anywhere in the mapped world: from the live local map inside the box, from the

@@ -65,7 +65,7 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
     double t = t0;
     while (t < t1) {
       // Rounding at the box faces can put the first or last voxel just outside.
-      if (map->InBox(0, g)) lv.flags[map->Slot(0, g)] |= LocalMap::kSeenFree | LocalMap::kHasData;
+      if (map->InBox(0, g)) lv.flags(map->Slot(0, g)) |= LocalMap::kSeenFree | LocalMap::kHasData;
       int a = 0;
       if (t_max[1] < t_max[a]) a = 1;
       if (t_max[2] < t_max[a]) a = 2;
@@ -83,7 +83,7 @@ void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map) {
   for (const Vec3f& p : points_W) {
     const Int3 g(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
                  int(std::floor(p.z() * inv_s)));
-    if (map->InBox(0, g)) lv.flags[map->Slot(0, g)] |= LocalMap::kObserved | LocalMap::kHasData;
+    if (map->InBox(0, g)) lv.flags(map->Slot(0, g)) |= LocalMap::kObserved | LocalMap::kHasData;
   }
 }
 

@@ -1,36 +1,93 @@
 #include "rim/local_map.h"
 
+#include <sys/mman.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <cstring>
+#include <new>
 
 namespace rim {
 
+namespace {
+constexpr size_t kHugePage = size_t{2} << 20;
+}  // namespace
+
+void LocalMap::Level::FreeAllocated(void* p) { std::free(p); }
+
+void* LocalMap::Level::AllocateZeroed(size_t bytes) {
+  // Arrays of at least a huge page start on a huge-page boundary; smaller ones (coarse levels,
+  // test maps) on a cache line, so that they do not pin a 2 MiB page each.
+  const size_t align = bytes >= kHugePage ? kHugePage : 64;
+  const size_t rounded = (std::max<size_t>(bytes, 1) + align - 1) / align * align;
+  void* p = std::aligned_alloc(align, rounded);
+  if (p == nullptr) throw std::bad_alloc();
+  // Advice only: with transparent huge pages off this is a no-op and the memory is the same.
+  if (align == kHugePage) (void)::madvise(p, rounded, MADV_HUGEPAGE);
+  std::memset(p, 0, bytes);
+  return p;
+}
+
+int LocalMap::Level::MomentFloats(int feature_dim) {
+  const int payload = 2 * feature_dim;
+  if (payload <= 8) return 8;
+  return (payload + 15) / 16 * 16;
+}
+
+void LocalMap::Level::Allocate(const Int3& lattice_dims, int feature_dim) {
+  dims = lattice_dims;
+  feature_dim_ = feature_dim;
+  slots_ = int64_t(dims.x()) * dims.y() * dims.z();
+  moment_floats_ = MomentFloats(feature_dim);
+  // Features start at zero (§3.1: random feature initialisation hurts); so do the moments,
+  // step counts, flags and scatter tags.
+  features_.Allocate(slots_ * feature_dim);
+  moments_.Allocate(slots_ * moment_floats_);
+  steps_.Allocate(slots_);
+  flags_.Allocate(slots_);
+  tags_.Allocate(slots_);
+}
+
+std::vector<float> LocalMap::Level::FeatureCopy() const {
+  return std::vector<float>(features_.data(), features_.data() + slots_ * feature_dim_);
+}
+
+std::vector<uint8_t> LocalMap::Level::FlagCopy() const {
+  return std::vector<uint8_t>(flags_.data(), flags_.data() + slots_);
+}
+
+int64_t LocalMap::Level::MemoryBytesFor(const Int3& lattice_dims, int feature_dim) {
+  const int64_t n = int64_t(lattice_dims.x()) * lattice_dims.y() * lattice_dims.z();
+  return n * ((int64_t(feature_dim) + MomentFloats(feature_dim)) * int64_t(sizeof(float)) +
+              int64_t(sizeof(int32_t) + sizeof(uint8_t) + sizeof(ScatterTag)));
+}
+
+int64_t LocalMap::Level::MemoryBytes() const { return MemoryBytesFor(dims, feature_dim_); }
+
 LocalMap::LocalMap(const MapGeometry& geometry) : geometry_(geometry) {
-  const int D = geometry_.feature_dim();
   levels_.resize(geometry_.levels());
-  for (int l = 0; l < geometry_.levels(); ++l) {
-    Level& lv = levels_[l];
-    lv.dims = geometry_.lattice_points(l);
-    const size_t n = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
-    // Features start at zero (§3.1: random feature initialisation hurts).
-    lv.features.assign(n * D, 0.f);
-    lv.adam_m.assign(n * D, 0.f);
-    lv.adam_v.assign(n * D, 0.f);
-    lv.adam_steps.assign(n, 0);
-    lv.flags.assign(n, 0);
-  }
+  for (int l = 0; l < geometry_.levels(); ++l)
+    levels_[l].Allocate(geometry_.lattice_points(l), geometry_.feature_dim());
 }
 
 void LocalMap::ResetSlot(int l, int64_t slot) {
   Level& lv = levels_[l];
   const int D = geometry_.feature_dim();
-  std::fill_n(&lv.features[slot * D], D, 0.f);
+  std::fill_n(lv.features(slot), D, 0.f);
   // The official code keeps Adam's moments of recycled storage; a new voxel must not inherit the
   // momentum of the one that used the slot before (§3.2).
-  std::fill_n(&lv.adam_m[slot * D], D, 0.f);
-  std::fill_n(&lv.adam_v[slot * D], D, 0.f);
-  lv.adam_steps[slot] = 0;
-  lv.flags[slot] = 0;
+  std::fill_n(lv.adam_m(slot), 2 * D, 0.f);
+  lv.adam_steps(slot) = 0;
+  lv.flags(slot) = 0;
+}
+
+uint32_t LocalMap::NextScatterStamp() {
+  if (++scatter_stamp_ == 0) {
+    for (Level& lv : levels_)
+      for (int64_t s = 0; s < lv.slots(); ++s) lv.tags_[s] = ScatterTag{0, 0};
+    scatter_stamp_ = 1;
+  }
+  return scatter_stamp_;
 }
 
 void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadFn& load) {
@@ -46,11 +103,10 @@ void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadF
       batch.level = l;
       ForEachInDifference(old_box, new_box, [&](const Int3& g) {
         const int64_t slot = Slot(l, g);
-        if (!(lv.flags[slot] & kHasData)) return;
+        if (!(lv.flags(slot) & kHasData)) return;
         batch.points.push_back(g);
-        batch.features.insert(batch.features.end(), &lv.features[slot * D],
-                              &lv.features[slot * D] + D);
-        if (l == 0) batch.observed.push_back(lv.flags[slot] & kObservedBits);
+        batch.features.insert(batch.features.end(), lv.features(slot), lv.features(slot) + D);
+        if (l == 0) batch.observed.push_back(lv.flags(slot) & kObservedBits);
         ResetSlot(l, slot);
       });
       if (!batch.points.empty() && save) save(std::move(batch));
@@ -59,8 +115,8 @@ void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadF
     auto fill = [&](const Int3& g) {
       const int64_t slot = Slot(l, g);
       uint8_t observed = 0;
-      if (load && load(l, g, &lv.features[slot * D], &observed)) {
-        lv.flags[slot] = kHasData | (observed & kObservedBits);
+      if (load && load(l, g, lv.features(slot), &observed)) {
+        lv.flags(slot) = kHasData | (observed & kObservedBits);
       }
     };
     if (placed_) {
@@ -84,23 +140,14 @@ void LocalMap::PlaceWithoutLoading(const Int3& coarse_origin) {
 
 int64_t LocalMap::MemoryBytesFor(const MapGeometry& geometry) {
   int64_t bytes = 0;
-  for (int l = 0; l < geometry.levels(); ++l) {
-    const Int3 dims = geometry.lattice_points(l);
-    const int64_t n = int64_t(dims.x()) * dims.y() * dims.z();
-    // features, adam_m, adam_v (D floats each), adam_steps and flags, as the constructor sizes
-    // them.
-    bytes += n * (3 * int64_t(geometry.feature_dim()) * int64_t(sizeof(float)) +
-                  int64_t(sizeof(int32_t)) + 1);
-  }
+  for (int l = 0; l < geometry.levels(); ++l)
+    bytes += Level::MemoryBytesFor(geometry.lattice_points(l), geometry.feature_dim());
   return bytes;
 }
 
 int64_t LocalMap::MemoryBytes() const {
   int64_t bytes = 0;
-  for (const Level& lv : levels_) {
-    bytes += int64_t(lv.features.size() + lv.adam_m.size() + lv.adam_v.size()) * sizeof(float);
-    bytes += int64_t(lv.adam_steps.size()) * sizeof(int32_t) + int64_t(lv.flags.size());
-  }
+  for (const Level& lv : levels_) bytes += lv.MemoryBytes();
   return bytes;
 }
 

@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
+#include <type_traits>
 #include <vector>
 
 #include "rim/map_geometry.h"
@@ -26,14 +28,86 @@ class LocalMap {
   enum Flags : uint8_t { kObserved = 1, kHasData = 2, kSeenFree = 4 };
   static constexpr uint8_t kObservedBits = kObserved | kSeenFree;
 
-  struct Level {
-    Int3 dims = Int3::Zero();     // lattice points per axis (storage size)
-    Int3 origin = Int3::Zero();   // world lattice index of the box's minimum corner
-    std::vector<float> features;  // slot-major, D per slot
-    std::vector<float> adam_m;
-    std::vector<float> adam_v;
-    std::vector<int32_t> adam_steps;  // per-slot step count: Adam bias correction per row
-    std::vector<uint8_t> flags;
+  // The gradient scatter's per-slot mark (SparseGradient): the slot has gradient row `row` in the
+  // iteration whose stamp equals `stamp`. Stamp and row share one 8-byte record so that a touch
+  // costs one cache miss; the array is small enough (8 bytes per slot) to stay mostly in cache.
+  struct ScatterTag {
+    uint32_t stamp;
+    int32_t row;
+  };
+
+  // One level's dense grid. The training step touches ~100k random slots per iteration, so the
+  // layout is chosen by cache lines touched per slot:
+  //  - features: D floats per slot, dense (for D = 8 the two z-neighbours of a trilinear corner
+  //    pair share one line, which the encode, the queries and the mesher all exploit);
+  //  - Adam moments m and v of a slot side by side in one record (one line for D = 8, where two
+  //    separate arrays cost two misses per updated row);
+  //  - the small per-slot arrays (scatter tags, step counts, flags) apart, so that they stay
+  //    mostly cache-resident and the passes that only need flags (free-space marking, meshing)
+  //    read 1 byte per slot.
+  class Level {
+   public:
+    Int3 dims = Int3::Zero();    // lattice points per axis (storage size)
+    Int3 origin = Int3::Zero();  // world lattice index of the box's minimum corner
+
+    void Allocate(const Int3& lattice_dims, int feature_dim);
+    int64_t slots() const { return slots_; }
+    int feature_dim() const { return feature_dim_; }
+    float* features(int64_t slot) { return features_.data() + slot * feature_dim_; }
+    const float* features(int64_t slot) const { return features_.data() + slot * feature_dim_; }
+    float* adam_m(int64_t slot) { return moments_.data() + slot * moment_floats_; }
+    const float* adam_m(int64_t slot) const { return moments_.data() + slot * moment_floats_; }
+    float* adam_v(int64_t slot) { return adam_m(slot) + feature_dim_; }
+    const float* adam_v(int64_t slot) const { return adam_m(slot) + feature_dim_; }
+    // Per-slot Adam step count: bias correction per row.
+    int32_t& adam_steps(int64_t slot) { return steps_[slot]; }
+    int32_t adam_steps(int64_t slot) const { return steps_[slot]; }
+    uint8_t& flags(int64_t slot) { return flags_[slot]; }
+    uint8_t flags(int64_t slot) const { return flags_[slot]; }
+    ScatterTag& scatter_tag(int64_t slot) { return tags_[slot]; }
+    const ScatterTag& scatter_tag(int64_t slot) const { return tags_[slot]; }
+    // Copies for tests and tools: every slot's features (slots × D) or flags, dense.
+    std::vector<float> FeatureCopy() const;
+    std::vector<uint8_t> FlagCopy() const;
+    int64_t MemoryBytes() const;
+    static int64_t MemoryBytesFor(const Int3& lattice_dims, int feature_dim);
+
+   private:
+    friend class LocalMap;
+    // Zeroed storage on 2 MiB boundaries, with the kernel asked for transparent huge pages: the
+    // training step's random accesses over hundreds of MB would otherwise miss the TLB on
+    // almost every row (4 KiB pages), and a page walk per row costs as much as the row.
+    static void* AllocateZeroed(size_t bytes);
+    static void FreeAllocated(void* p);
+    template <typename T>
+    class Array {
+     public:
+      void Allocate(int64_t n) {
+        static_assert(std::is_trivially_copyable_v<T>);
+        data_.reset(static_cast<T*>(AllocateZeroed(size_t(n) * sizeof(T))));
+      }
+      T* data() { return data_.get(); }
+      const T* data() const { return data_.get(); }
+      T& operator[](int64_t i) { return data_.get()[i]; }
+      const T& operator[](int64_t i) const { return data_.get()[i]; }
+
+     private:
+      struct Free {
+        void operator()(T* p) const { FreeAllocated(p); }
+      };
+      std::unique_ptr<T[], Free> data_;
+    };
+    // Moment record size in floats: 2·D rounded up to 32 or a multiple of 64 bytes, so that no
+    // record straddles two cache lines.
+    static int MomentFloats(int feature_dim);
+
+    int feature_dim_ = 0;
+    int64_t slots_ = 0;
+    int moment_floats_ = 0;
+    Array<float> features_, moments_;
+    Array<int32_t> steps_;
+    Array<uint8_t> flags_;
+    Array<ScatterTag> tags_;
   };
 
   // Loads a voxel's data from the global map; returns false when nothing is known there.
@@ -84,6 +158,10 @@ class LocalMap {
   // The same for a local map of `geometry`, without building one.
   static int64_t MemoryBytesFor(const MapGeometry& geometry);
 
+  // A new stamp for one gradient scatter (ScatterTag::stamp). When the counter wraps,
+  // every slot's stamp is cleared first, so an old mark never equals a new stamp.
+  uint32_t NextScatterStamp();
+
  private:
   double coarse_m() const { return geometry_.voxel_m(geometry_.levels() - 1); }
 
@@ -91,6 +169,7 @@ class LocalMap {
   std::vector<Level> levels_;
   Int3 coarse_origin_ = Int3::Zero();
   bool placed_ = false;
+  uint32_t scatter_stamp_ = 0;
 };
 
 }  // namespace rim

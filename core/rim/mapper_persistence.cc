@@ -45,14 +45,14 @@ void SerializeLocalMap(const LocalMap& map, ByteWriter* w) {
     std::vector<float> f, m, v;
     std::vector<int32_t> steps;
     std::vector<uint8_t> flags;
-    for (size_t s = 0; s < lv.flags.size(); ++s) {
-      if (!(lv.flags[s] & LocalMap::kHasData)) continue;
-      slots.push_back(int64_t(s));
-      f.insert(f.end(), &lv.features[s * D], &lv.features[s * D] + D);
-      m.insert(m.end(), &lv.adam_m[s * D], &lv.adam_m[s * D] + D);
-      v.insert(v.end(), &lv.adam_v[s * D], &lv.adam_v[s * D] + D);
-      steps.push_back(lv.adam_steps[s]);
-      flags.push_back(lv.flags[s]);
+    for (int64_t s = 0; s < lv.slots(); ++s) {
+      if (!(lv.flags(s) & LocalMap::kHasData)) continue;
+      slots.push_back(s);
+      f.insert(f.end(), lv.features(s), lv.features(s) + D);
+      m.insert(m.end(), lv.adam_m(s), lv.adam_m(s) + D);
+      v.insert(v.end(), lv.adam_v(s), lv.adam_v(s) + D);
+      steps.push_back(lv.adam_steps(s));
+      flags.push_back(lv.flags(s));
     }
     w->PodVector(slots);
     w->PodVector(f);
@@ -99,13 +99,13 @@ absl::Status DeserializeLocalMap(ByteReader* r, LocalMap* map) {
       return absl::DataLossError(absl::StrCat("local map level ", l, ": inconsistent array sizes"));
     for (size_t i = 0; i < n; ++i) {
       const int64_t s = slots[i];
-      if (s < 0 || size_t(s) >= lv.flags.size())
+      if (s < 0 || s >= lv.slots())
         return absl::DataLossError(absl::StrCat("local map level ", l, ": slot out of range"));
-      std::copy_n(&f[i * D], D, &lv.features[s * D]);
-      std::copy_n(&m[i * D], D, &lv.adam_m[s * D]);
-      std::copy_n(&v[i * D], D, &lv.adam_v[s * D]);
-      lv.adam_steps[s] = steps[i];
-      lv.flags[s] = flags[i];
+      std::copy_n(&f[i * D], D, lv.features(s));
+      std::copy_n(&m[i * D], D, lv.adam_m(s));
+      std::copy_n(&v[i * D], D, lv.adam_v(s));
+      lv.adam_steps(s) = steps[i];
+      lv.flags(s) = flags[i];
     }
   }
   return absl::OkStatus();

@@ -30,12 +30,12 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
   if (map.placed()) {
     const Int3 lo = box.lo.cwiseMax(tile_lo);
     const Int3 hi = (box.hi - Int3::Ones()).cwiseMin(tile_hi);  // cells, not lattice points
-    const auto& flags = map.level(0).flags;
+    const LocalMap::Level& grid = map.level(0);
     for (int x = lo.x(); x <= hi.x(); ++x)
       for (int y = lo.y(); y <= hi.y(); ++y)
         for (int z = lo.z(); z <= hi.z(); ++z) {
           const Int3 g(x, y, z);
-          if (flags[map.Slot(0, g)] & LocalMap::kObserved) out.push_back(g);
+          if (grid.flags(map.Slot(0, g)) & LocalMap::kObserved) out.push_back(g);
         }
   }
   return out;

@@ -99,7 +99,7 @@ struct ReferenceTrainer::State {
 ReferenceTrainer::ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
     : config_(config), map_(map), decoder_(decoder), state_(std::make_unique<State>()) {
   for (int l = 0; l < map->geometry().levels(); ++l) {
-    const int64_t rows = int64_t(map->level(l).adam_steps.size());
+    const int64_t rows = map->level(l).slots();
     state_->m.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
     state_->v.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
   }
@@ -126,8 +126,7 @@ absl::StatusOr<float> ReferenceTrainer::Iterate(const float* xyz, const float* l
     std::vector<torch::Tensor> grids, per_level;
     for (int l = 0; l < L; ++l) {
       LocalMap::Level& lv = map_->level(l);
-      grids.push_back(torch::from_blob(lv.features.data(), {int64_t(lv.adam_steps.size()), D}, f32)
-                          .requires_grad_(true));
+      grids.push_back(torch::from_blob(lv.features(0), {lv.slots(), D}, f32).requires_grad_(true));
       const torch::Tensor corners =
           grids.back().index_select(0, slots.select(1, l).reshape({-1})).view({n, 8, D});
       per_level.push_back((corners * weights.select(1, l).unsqueeze(2)).sum(1));

@@ -94,8 +94,8 @@ absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming*
   }
   double t3 = Now();
 
-  grad_.BeginIteration();
-  grad_.Scatter(*map_, encoding_, out->grad_features.data(), &pool_);
+  grad_.BeginIteration(map_);
+  grad_.Scatter(map_, encoding_, out->grad_features.data(), &pool_);
   ApplyFeatureUpdates();
   if (train_decoder) {
     const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
@@ -118,10 +118,38 @@ namespace {
 constexpr size_t kPrefetchRows = 8;
 }  // namespace
 
+void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
+                       const SparseGradient::Level& g, size_t begin, size_t end,
+                       LocalMap::Level* lv) {
+  const int D = lv->feature_dim();
+  for (size_t r = begin; r < end; ++r) {
+    // Rows are scattered over the dense grid: start loading a later row's features, moments,
+    // step count and flags now, so that the misses overlap instead of queueing one after
+    // another.
+    if (r + kPrefetchRows < end) {
+      const int64_t ahead = g.touched[r + kPrefetchRows];
+      __builtin_prefetch(lv->features(ahead), 1);
+      __builtin_prefetch(lv->adam_m(ahead), 1);
+      __builtin_prefetch(&lv->adam_steps(ahead), 1);
+      __builtin_prefetch(&lv->flags(ahead), 1);
+    }
+    const int64_t slot = g.touched[r];
+    float step_size, inv_sqrt_bc2;
+    bias.Get(++lv->adam_steps(slot), &step_size, &inv_sqrt_bc2);
+    if (D == 8) {  // every preset
+      AdamUpdateFixedRow<8>(hyper, step_size, inv_sqrt_bc2, &g.grad[r * 8], lv->features(slot),
+                            lv->adam_m(slot), lv->adam_v(slot));
+    } else {
+      AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[r * D], lv->features(slot),
+                    lv->adam_m(slot), lv->adam_v(slot));
+    }
+    lv->flags(slot) |= LocalMap::kHasData;
+  }
+}
+
 void Trainer::ApplyFeatureUpdates() {
   const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                         config_.train.adam_beta2, config_.train.adam_eps};
-  const int D = map_->geometry().feature_dim();
   // Touched rows are distinct slots, so any split of them is race-free: (level, chunk) tasks.
   const int chunks = pool_.threads();
   pool_.Run(map_->geometry().levels() * chunks, [&](int task) {
@@ -131,24 +159,7 @@ void Trainer::ApplyFeatureUpdates() {
     // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
     const size_t n = g.touched.size();
     const size_t begin = n * size_t(c) / size_t(chunks), end = n * size_t(c + 1) / size_t(chunks);
-    for (size_t r = begin; r < end; ++r) {
-      // Rows are scattered over the dense grid: start loading a later row's features and
-      // moments now, so that the misses overlap instead of queueing one after another.
-      if (r + kPrefetchRows < end) {
-        const int64_t ahead = g.touched[r + kPrefetchRows];
-        __builtin_prefetch(&lv.features[ahead * D], 1);
-        __builtin_prefetch(&lv.adam_m[ahead * D], 1);
-        __builtin_prefetch(&lv.adam_v[ahead * D], 1);
-        __builtin_prefetch(&lv.adam_steps[ahead], 1);
-        __builtin_prefetch(&lv.flags[ahead], 1);
-      }
-      const int64_t slot = g.touched[r];
-      float step_size, inv_sqrt_bc2;
-      bias_.Get(++lv.adam_steps[slot], &step_size, &inv_sqrt_bc2);
-      AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[r * D], &lv.features[slot * D],
-                    &lv.adam_m[slot * D], &lv.adam_v[slot * D]);
-      lv.flags[slot] |= LocalMap::kHasData;
-    }
+    UpdateTouchedRows(hyper, bias_, g, begin, end, &lv);
   });
 }
 
@@ -171,7 +182,7 @@ void Trainer::MarkObserved() {
     const Int3 g(int(std::floor(batch_.xyz[3 * i] * inv_s)),
                  int(std::floor(batch_.xyz[3 * i + 1] * inv_s)),
                  int(std::floor(batch_.xyz[3 * i + 2] * inv_s)));
-    lv.flags[map_->Slot(0, g)] |= bits | LocalMap::kHasData;
+    lv.flags(map_->Slot(0, g)) |= bits | LocalMap::kHasData;
   }
 }
 

@@ -20,6 +20,12 @@ struct IterationTiming {
   double sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0, step_s = 0;
 };
 
+// Lazy Adam on touched rows [begin, end) of one level: each row moves with its own step count and
+// is marked as holding data. Rows are distinct slots, so disjoint ranges may run concurrently.
+void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
+                       const SparseGradient::Level& g, size_t begin, size_t end,
+                       LocalMap::Level* lv);
+
 class Trainer {
  public:
   Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder);

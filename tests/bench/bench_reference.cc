@@ -54,10 +54,10 @@ void BM_AdamFeaturesSlotOrder(benchmark::State& state) {
       for (int32_t r : order[l]) {
         const int64_t slot = g.touched[r];
         float step_size, inv_sqrt_bc2;
-        f.bias().Get(++lv.adam_steps[slot], &step_size, &inv_sqrt_bc2);
-        AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[size_t(r) * D],
-                      &lv.features[slot * D], &lv.adam_m[slot * D], &lv.adam_v[slot * D]);
-        lv.flags[slot] |= LocalMap::kHasData;
+        f.bias().Get(++lv.adam_steps(slot), &step_size, &inv_sqrt_bc2);
+        AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[size_t(r) * D], lv.features(slot),
+                      lv.adam_m(slot), lv.adam_v(slot));
+        lv.flags(slot) |= LocalMap::kHasData;
       }
     }
   }
@@ -82,11 +82,10 @@ void BM_AdamFeaturesContiguous(benchmark::State& state) {
   for (int l = 0; l < geo.levels(); ++l) {
     const LocalMap::Level& lv = f.map().level(l);
     for (int64_t slot : f.gradient().level(l).touched) {
-      rows[l].features.insert(rows[l].features.end(), &lv.features[slot * D],
-                              &lv.features[(slot + 1) * D]);
-      rows[l].m.insert(rows[l].m.end(), &lv.adam_m[slot * D], &lv.adam_m[(slot + 1) * D]);
-      rows[l].v.insert(rows[l].v.end(), &lv.adam_v[slot * D], &lv.adam_v[(slot + 1) * D]);
-      rows[l].steps.push_back(lv.adam_steps[slot]);
+      rows[l].features.insert(rows[l].features.end(), lv.features(slot), lv.features(slot) + D);
+      rows[l].m.insert(rows[l].m.end(), lv.adam_m(slot), lv.adam_m(slot) + D);
+      rows[l].v.insert(rows[l].v.end(), lv.adam_v(slot), lv.adam_v(slot) + D);
+      rows[l].steps.push_back(lv.adam_steps(slot));
     }
   }
   for (auto _ : state) {

@@ -103,25 +103,16 @@ void TrainingFixture::TrainStep(bool train_decoder) {
 }
 
 void TrainingFixture::Scatter() {
-  gradient_.BeginIteration();
-  gradient_.Scatter(*map_, encoding_, step_output_.grad_features.data());
+  gradient_.BeginIteration(map_.get());
+  gradient_.Scatter(map_.get(), encoding_, step_output_.grad_features.data());
 }
 
-// The loop of Trainer::ApplyFeatureUpdates (private there), through the same public row update.
+// What Trainer::ApplyFeatureUpdates runs, on one thread.
 void TrainingFixture::AdamFeatures() {
   const AdamHyper hyper = Hyper(config_.train);
-  const int D = geometry_->feature_dim();
   for (int l = 0; l < geometry_->levels(); ++l) {
-    LocalMap::Level& lv = map_->level(l);
-    SparseGradient::Level& g = gradient_.level(l);
-    for (size_t r = 0; r < g.touched.size(); ++r) {
-      const int64_t slot = g.touched[r];
-      float step_size, inv_sqrt_bc2;
-      bias_.Get(++lv.adam_steps[slot], &step_size, &inv_sqrt_bc2);
-      AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[r * D], &lv.features[slot * D],
-                    &lv.adam_m[slot * D], &lv.adam_v[slot * D]);
-      lv.flags[slot] |= LocalMap::kHasData;
-    }
+    const SparseGradient::Level& g = gradient_.level(l);
+    UpdateTouchedRows(hyper, bias_, g, 0, g.touched.size(), &map_->level(l));
   }
 }
 
@@ -149,11 +140,11 @@ void TrainingFixture::SaveOptimiserState() {
     const LocalMap::Level& lv = map_->level(l);
     SavedLevel& s = saved_levels_[l];
     for (int64_t slot : gradient_.level(l).touched) {
-      s.features.insert(s.features.end(), &lv.features[slot * D], &lv.features[(slot + 1) * D]);
-      s.adam_m.insert(s.adam_m.end(), &lv.adam_m[slot * D], &lv.adam_m[(slot + 1) * D]);
-      s.adam_v.insert(s.adam_v.end(), &lv.adam_v[slot * D], &lv.adam_v[(slot + 1) * D]);
-      s.adam_steps.push_back(lv.adam_steps[slot]);
-      s.flags.push_back(lv.flags[slot]);
+      s.features.insert(s.features.end(), lv.features(slot), lv.features(slot) + D);
+      s.adam_m.insert(s.adam_m.end(), lv.adam_m(slot), lv.adam_m(slot) + D);
+      s.adam_v.insert(s.adam_v.end(), lv.adam_v(slot), lv.adam_v(slot) + D);
+      s.adam_steps.push_back(lv.adam_steps(slot));
+      s.flags.push_back(lv.flags(slot));
     }
   }
   ByteWriter w;
@@ -169,11 +160,11 @@ void TrainingFixture::RestoreOptimiserState() {
     const std::vector<int64_t>& touched = gradient_.level(l).touched;
     for (size_t r = 0; r < touched.size(); ++r) {
       const int64_t slot = touched[r];
-      std::copy_n(&s.features[r * D], D, &lv.features[slot * D]);
-      std::copy_n(&s.adam_m[r * D], D, &lv.adam_m[slot * D]);
-      std::copy_n(&s.adam_v[r * D], D, &lv.adam_v[slot * D]);
-      lv.adam_steps[slot] = s.adam_steps[r];
-      lv.flags[slot] = s.flags[r];
+      std::copy_n(&s.features[r * D], D, lv.features(slot));
+      std::copy_n(&s.adam_m[r * D], D, lv.adam_m(slot));
+      std::copy_n(&s.adam_v[r * D], D, lv.adam_v(slot));
+      lv.adam_steps(slot) = s.adam_steps[r];
+      lv.flags(slot) = s.flags[r];
     }
   }
   ByteReader r(saved_decoder_, "saved decoder");

@@ -219,7 +219,8 @@ TEST(DecoderTest, AnalyticPositionGradientMatchesFiniteDifferences) {
   std::mt19937 rng(60);
   std::uniform_real_distribution<float> u(-1.f, 1.f);
   for (int l = 0; l < geo.levels(); ++l)
-    for (float& f : map.level(l).features) f = u(rng);
+    for (int64_t s = 0; s < map.level(l).slots(); ++s)
+      for (int d = 0; d < map.geometry().feature_dim(); ++d) map.level(l).features(s)[d] = u(rng);
   SubmapStore store(geo, config->submap);
   FeatureReader reader(map, store);
 

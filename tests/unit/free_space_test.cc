@@ -31,11 +31,11 @@ class FreeSpaceTest : public ::testing::Test {
     const double s = geometry_.leaf_m();
     const Int3 g(int(std::floor(p.x() / s)), int(std::floor(p.y() / s)),
                  int(std::floor(p.z() / s)));
-    return map_.level(0).flags[map_.Slot(0, g)] & LocalMap::kSeenFree;
+    return map_.level(0).flags(map_.Slot(0, g)) & LocalMap::kSeenFree;
   }
   int CountSeenFree() {
     int n = 0;
-    for (uint8_t f : map_.level(0).flags) n += (f & LocalMap::kSeenFree) != 0;
+    for (uint8_t f : map_.level(0).FlagCopy()) n += (f & LocalMap::kSeenFree) != 0;
     return n;
   }
 

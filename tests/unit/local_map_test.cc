@@ -108,14 +108,14 @@ class SlidingHarness {
       adam.m.resize(D);
       adam.v.resize(D);
       for (int d = 0; d < D; ++d) {
-        ref.features[d] = lv.features[slot * D + d] = value(rng_);
-        adam.m[d] = lv.adam_m[slot * D + d] = value(rng_);
-        adam.v[d] = lv.adam_v[slot * D + d] = positive(rng_);
+        ref.features[d] = lv.features(slot)[d] = value(rng_);
+        adam.m[d] = lv.adam_m(slot)[d] = value(rng_);
+        adam.v[d] = lv.adam_v(slot)[d] = positive(rng_);
       }
-      adam.steps = lv.adam_steps[slot] = steps(rng_);
-      lv.flags[slot] |= LocalMap::kHasData;
+      adam.steps = lv.adam_steps(slot) = steps(rng_);
+      lv.flags(slot) |= LocalMap::kHasData;
       if (l == 0 && coin(rng_)) {
-        lv.flags[slot] |= LocalMap::kObserved;
+        lv.flags(slot) |= LocalMap::kObserved;
         ref.observed = true;
       }
     }
@@ -141,22 +141,22 @@ class SlidingHarness {
           for (int z = box.lo.z(); z <= box.hi.z(); ++z) {
             const Int3 g(x, y, z);
             const int64_t slot = map_.Slot(l, g);
-            const float* f = &lv.features[slot * D];
+            const float* f = lv.features(slot);
             auto it = ref_.find(KeyOf(l, g));
             const float* want = it == ref_.end() ? zeros.data() : it->second.features.data();
             const bool want_observed = it != ref_.end() && it->second.observed;
             if (std::memcmp(f, want, sizeof(float) * D) != 0) fail("features differ", l, g);
-            if (bool(lv.flags[slot] & LocalMap::kObserved) != want_observed)
+            if (bool(lv.flags(slot) & LocalMap::kObserved) != want_observed)
               fail("observed flag differs", l, g);
-            if (it != ref_.end() && !(lv.flags[slot] & LocalMap::kHasData))
+            if (it != ref_.end() && !(lv.flags(slot) & LocalMap::kHasData))
               fail("kHasData missing on a voxel with data", l, g);
             auto at = adam_.find(KeyOf(l, g));
             const float* want_m = at == adam_.end() ? zeros.data() : at->second.m.data();
             const float* want_v = at == adam_.end() ? zeros.data() : at->second.v.data();
             const int32_t want_steps = at == adam_.end() ? 0 : at->second.steps;
-            if (std::memcmp(&lv.adam_m[slot * D], want_m, sizeof(float) * D) != 0 ||
-                std::memcmp(&lv.adam_v[slot * D], want_v, sizeof(float) * D) != 0 ||
-                lv.adam_steps[slot] != want_steps) {
+            if (std::memcmp(lv.adam_m(slot), want_m, sizeof(float) * D) != 0 ||
+                std::memcmp(lv.adam_v(slot), want_v, sizeof(float) * D) != 0 ||
+                lv.adam_steps(slot) != want_steps) {
               fail("Adam state differs (stale optimiser state in a recycled slot?)", l, g);
             }
           }
@@ -185,10 +185,8 @@ StoragePointers Capture(const LocalMap& map) {
   StoragePointers s;
   for (int l = 0; l < map.geometry().levels(); ++l) {
     const LocalMap::Level& lv = map.level(l);
-    s.ptrs.insert(s.ptrs.end(), {lv.features.data(), lv.adam_m.data(), lv.adam_v.data(),
-                                 lv.adam_steps.data(), lv.flags.data()});
-    s.sizes.insert(s.sizes.end(), {lv.features.size(), lv.adam_m.size(), lv.adam_v.size(),
-                                   lv.adam_steps.size(), lv.flags.size()});
+    s.ptrs.insert(s.ptrs.end(), {lv.features(0), lv.adam_m(0)});
+    s.sizes.push_back(size_t(lv.slots()));
   }
   return s;
 }
@@ -284,8 +282,8 @@ TEST(LocalMapTest, MoveToSameOriginIsNoOp) {
   std::vector<std::vector<float>> features;
   std::vector<std::vector<uint8_t>> flags;
   for (int l = 0; l < h.geometry().levels(); ++l) {
-    features.push_back(map.level(l).features);
-    flags.push_back(map.level(l).flags);
+    features.push_back(map.level(l).FeatureCopy());
+    flags.push_back(map.level(l).FlagCopy());
   }
   int saves = 0, loads = 0;
   map.MoveTo(
@@ -298,8 +296,8 @@ TEST(LocalMapTest, MoveToSameOriginIsNoOp) {
   EXPECT_EQ(loads, 0);
   EXPECT_EQ(map.coarse_origin(), Int3(3, -2, 1));
   for (int l = 0; l < h.geometry().levels(); ++l) {
-    EXPECT_EQ(map.level(l).features, features[l]) << "level " << l;
-    EXPECT_EQ(map.level(l).flags, flags[l]) << "level " << l;
+    EXPECT_EQ(map.level(l).FeatureCopy(), features[l]) << "level " << l;
+    EXPECT_EQ(map.level(l).FlagCopy(), flags[l]) << "level " << l;
   }
   std::string report;
   EXPECT_EQ(h.CheckAgainstReference(&report), 0) << report;
@@ -329,8 +327,8 @@ TEST(LocalMapTest, FirstPlacementLoadsTheWholeBox) {
     for (const Int3& g : {box.lo, box.hi, Int3(box.lo.x() + 1, box.hi.y(), box.lo.z())}) {
       const int64_t slot = map.Slot(l, g);
       const bool known = PosMod(g.x(), 2) == 0;
-      EXPECT_EQ(bool(map.level(l).flags[slot] & LocalMap::kHasData), known);
-      EXPECT_EQ(bool(map.level(l).flags[slot] & LocalMap::kObserved), known);
+      EXPECT_EQ(bool(map.level(l).flags(slot) & LocalMap::kHasData), known);
+      EXPECT_EQ(bool(map.level(l).flags(slot) & LocalMap::kObserved), known);
     }
   }
 }
@@ -347,8 +345,8 @@ TEST(LocalMapTest, SaveBatchHoldsOnlyLeavingVoxelsWithData) {
   const Int3 staying = box.lo + Int3(4, 3, 4);
   for (const Int3& g : {leaving, staying}) {
     const int64_t slot = map.Slot(0, g);
-    map.level(0).features[slot * D] = 2.5f;
-    map.level(0).flags[slot] = LocalMap::kHasData | LocalMap::kObserved;
+    map.level(0).features(slot)[0] = 2.5f;
+    map.level(0).flags(slot) = LocalMap::kHasData | LocalMap::kObserved;
   }
   std::vector<SlabBatch> batches;
   // One coarse voxel along +x: 4 level-0 slabs leave.
@@ -362,7 +360,7 @@ TEST(LocalMapTest, SaveBatchHoldsOnlyLeavingVoxelsWithData) {
   EXPECT_EQ(batches[0].features[0], 2.5f);
   ASSERT_EQ(batches[0].observed.size(), 1u);
   EXPECT_EQ(batches[0].observed[0], 1);
-  EXPECT_EQ(map.level(0).features[map.Slot(0, staying) * D], 2.5f);
+  EXPECT_EQ(map.level(0).features(map.Slot(0, staying))[0], 2.5f);
 }
 
 }  // namespace

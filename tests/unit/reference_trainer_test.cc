@@ -75,8 +75,8 @@ TEST_P(ReferenceTrainerTest, FastPathMatchesTheDenseLibtorchReference) {
   }
   // Every row of every grid (untouched rows must still be zero in both), and the decoder.
   for (int l = 0; l < geometry.levels(); ++l) {
-    const std::vector<float>& a = fast_map.level(l).features;
-    const std::vector<float>& b = ref_map.level(l).features;
+    const std::vector<float> a = fast_map.level(l).FeatureCopy();
+    const std::vector<float> b = ref_map.level(l).FeatureCopy();
     ASSERT_EQ(a.size(), b.size());
     const float scale = MaxAbs(b);
     EXPECT_GT(scale, 0.f) << "level " << l << " did not train";
