@@ -194,11 +194,33 @@ void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
     std::fill_n(out, D, 0.f);
     float* jac = jacobian ? jacobian + size_t(l) * D * 3 : nullptr;
     if (jac) std::fill_n(jac, D * 3, 0.f);
+    // The 8 corner rows. When the whole cell is in the live box (the common case for queries
+    // near the robot), its slots follow from the lower corner's with a wrap per axis: 3 modulo
+    // operations for the cell instead of 3 per corner.
+    const float* corner[8];
+    const IntBox box = map_.LatticeBox(l);
+    const bool inside = map_.placed() && (base.array() >= box.lo.array()).all() &&
+                        (base.array() < box.hi.array()).all();
+    if (inside) {
+      const LocalMap::Level& lv = map_.level(l);
+      int64_t s0[3], s1[3];
+      for (int a = 0; a < 3; ++a) {
+        s0[a] = PosMod(base[a], lv.dims[a]);
+        s1[a] = s0[a] + 1 == lv.dims[a] ? 0 : s0[a] + 1;
+      }
+      for (int c = 0; c < 8; ++c) {
+        const int64_t slot =
+            ((c & 4 ? s1[0] : s0[0]) * lv.dims.y() + (c & 2 ? s1[1] : s0[1])) * lv.dims.z() +
+            (c & 1 ? s1[2] : s0[2]);
+        corner[c] = lv.features(slot);
+      }
+    }
     for (int c = 0; c < 8; ++c) {
       const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
       const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
                   tz = cz ? f[2] : 1.f - f[2];
-      const float* feat = Get(l, base + Int3(cx, cy, cz));
+      // Otherwise each row comes from Get, valid only until the next call: used at once.
+      const float* feat = inside ? corner[c] : Get(l, base + Int3(cx, cy, cz));
       const float wc = tx * ty * tz;
       for (int d = 0; d < D; ++d) out[d] += wc * feat[d];
       if (!jac) continue;
