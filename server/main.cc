@@ -76,9 +76,14 @@ int Run(int argc, char** argv) {
             << config->ToString() << std::flush;
 
   // SIGTERM and SIGINT reach a handler that only writes to a pipe; one thread reads it and shuts
-  // down. (Blocking the signals and sigwait-ing would miss threads started before main, such as
-  // OpenBLAS's pool: the kernel may deliver the signal to any of them.) A full disk or a file-size
-  // limit must give write errors, not kill the process: SIGXFSZ is ignored, like SIGPIPE.
+  // down. (Blocking the signals and sigwait-ing alone would miss threads started before main, such
+  // as OpenBLAS's pool: the kernel may deliver the signal to any of them.) Every thread started
+  // from here on, gRPC's and rim's, blocks both signals, and the shutdown thread unblocks them, so
+  // they are handled on the thread that waits for them: a handler run on a thread parked in a
+  // futex wait inside gRPC or Abseil is not always run at once (ThreadSanitizer defers it until
+  // that thread wakes, which under TSan left rim_server ignoring SIGTERM). A full disk or a
+  // file-size limit must give write errors, not kill the process: SIGXFSZ is ignored, like
+  // SIGPIPE.
   if (pipe2(g_signal_pipe, O_CLOEXEC) != 0) {
     std::cerr << "rim_server: pipe2: " << std::strerror(errno) << "\n";
     return 1;
@@ -91,6 +96,12 @@ int Run(int argc, char** argv) {
   sigaction(SIGINT, &on_signal, nullptr);
   signal(SIGXFSZ, SIG_IGN);
   signal(SIGPIPE, SIG_IGN);
+  sigset_t shutdown_signals;
+  sigemptyset(&shutdown_signals);
+  sigaddset(&shutdown_signals, SIGTERM);
+  sigaddset(&shutdown_signals, SIGINT);
+  // Pending until the shutdown thread starts (after warm-up), as the pipe kept them before.
+  pthread_sigmask(SIG_BLOCK, &shutdown_signals, nullptr);
   // Exposure rule, tokens and TLS credentials (docs/security.md); a bad setting is exit 2.
   auto security = rim::server::SetUpSecurity(*config);
   if (!security.ok()) {
@@ -170,6 +181,7 @@ int Run(int argc, char** argv) {
   server->GetHealthCheckService()->SetServingStatus(true);
 
   std::thread signal_thread([&] {
+    pthread_sigmask(SIG_UNBLOCK, &shutdown_signals, nullptr);
     char signal = 0;
     while (read(g_signal_pipe[0], &signal, 1) < 0 && errno == EINTR) {
     }
