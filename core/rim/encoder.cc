@@ -177,6 +177,28 @@ uint8_t FeatureReader::ObservedBits(const Int3& g0) {
   return s.block->observed[size_t(s.index)] & LocalMap::kObservedBits;
 }
 
+void FeatureReader::Prefetch(const Vec3d& p_W) const {
+  if (!map_.placed()) return;
+  const MapGeometry& geo = map_.geometry();
+  for (int l = 0; l < geo.levels(); ++l) {
+    const double inv_h = 1.0 / geo.voxel_m(l);
+    const IntBox box = map_.LatticeBox(l);
+    Int3 base;
+    for (int a = 0; a < 3; ++a) base[a] = int(std::floor(p_W[a] * inv_h));
+    if ((base.array() < box.lo.array()).any() || (base.array() >= box.hi.array()).any()) continue;
+    const LocalMap::Level& lv = map_.level(l);
+    int64_t s0[3], s1[3];
+    for (int a = 0; a < 3; ++a) {
+      s0[a] = PosMod(base[a], lv.dims[a]);
+      s1[a] = s0[a] + 1 == lv.dims[a] ? 0 : s0[a] + 1;
+    }
+    // Corners c and c + 1 differ in z only: mostly one cache line.
+    for (int c = 0; c < 8; c += 2)
+      __builtin_prefetch(lv.features(
+          ((c & 4 ? s1[0] : s0[0]) * lv.dims.y() + (c & 2 ? s1[1] : s0[1])) * lv.dims.z() + s0[2]));
+  }
+}
+
 void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
   const MapGeometry& geo = map_.geometry();
   const int L = geo.levels(), D = geo.feature_dim();

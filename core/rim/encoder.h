@@ -74,6 +74,9 @@ class FeatureReader {
 
   // Encodes one point; with `jacobian` (L·D × 3, row-major) also d features / d position.
   void Encode(const Vec3d& p_W, float* features, float* jacobian);
+  // Starts loading the live-map rows that Encode(p_W) will read, without waiting for them: call
+  // it a few points ahead so that the cache misses of several points overlap.
+  void Prefetch(const Vec3d& p_W) const;
 
  private:
   // One store block (null: the store has none there), shared with the store without a copy.

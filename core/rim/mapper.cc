@@ -213,7 +213,12 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
         dsdf(want_gradient ? kChunk * F : 0);
     for (size_t c = first; c < chunks; c += stride) {
       const size_t begin = c * kChunk, m = std::min(kChunk, n - begin);
+      constexpr size_t kAhead = 4;  // points whose rows are on their way while one is blended
       for (size_t i = 0; i < m; ++i) {
+        if (i + kAhead < m) {
+          const float* ahead = xyz + 3 * (begin + i + kAhead);
+          reader.Prefetch(Vec3d(ahead[0], ahead[1], ahead[2]));
+        }
         const float* q = xyz + 3 * (begin + i);
         const Vec3d p(q[0], q[1], q[2]);
         reader.Encode(p, &features[i * F], want_gradient ? &jac[i * F * 3] : nullptr);
