@@ -75,14 +75,15 @@ int Run(int argc, char** argv) {
   std::cerr << "rim_server " << rim::kRimVersion << " effective config:\n"
             << config->ToString() << std::flush;
 
-  // SIGTERM and SIGINT reach a handler that only writes to a pipe; one thread reads it and shuts
-  // down. (Blocking the signals and sigwait-ing alone would miss threads started before main, such
-  // as OpenBLAS's pool: the kernel may deliver the signal to any of them.) Every thread started
-  // from here on, gRPC's and rim's, blocks both signals, and the shutdown thread unblocks them, so
-  // they are handled on the thread that waits for them: a handler run on a thread parked in a
-  // futex wait inside gRPC or Abseil is not always run at once (ThreadSanitizer defers it until
-  // that thread wakes, which under TSan left rim_server ignoring SIGTERM). A full disk or a
-  // file-size limit must give write errors, not kill the process: SIGXFSZ is ignored, like
+  // SIGTERM and SIGINT reach a handler that only writes to a pipe; the main thread reads it and
+  // shuts down. Every thread started during set-up (gRPC's, the metrics exposer's, rim's) blocks
+  // both signals, and the main thread unblocks them before warm-up, so the kernel delivers them to
+  // the main thread (it gets first pick of a signal sent to the process), which after warm-up
+  // waits for them in read(). A handler on any other thread would also work in a normal build,
+  // but on a thread parked in a futex wait inside gRPC or Abseil, or on a thread started before
+  // main (OpenBLAS's pool, ThreadSanitizer's own), ThreadSanitizer defers it until that thread
+  // next enters its runtime, which can be never: rim_server then ignored SIGTERM. A full disk or
+  // a file-size limit must give write errors, not kill the process: SIGXFSZ is ignored, like
   // SIGPIPE.
   if (pipe2(g_signal_pipe, O_CLOEXEC) != 0) {
     std::cerr << "rim_server: pipe2: " << std::strerror(errno) << "\n";
@@ -100,7 +101,6 @@ int Run(int argc, char** argv) {
   sigemptyset(&shutdown_signals);
   sigaddset(&shutdown_signals, SIGTERM);
   sigaddset(&shutdown_signals, SIGINT);
-  // Pending until the shutdown thread starts (after warm-up), as the pipe kept them before.
   pthread_sigmask(SIG_BLOCK, &shutdown_signals, nullptr);
   // Exposure rule, tokens and TLS credentials (docs/security.md); a bad setting is exit 2.
   auto security = rim::server::SetUpSecurity(*config);
@@ -171,6 +171,8 @@ int Run(int argc, char** argv) {
   // Tests and scripts wait for this line (the port is resolved when --listen asks for port 0).
   std::printf("rim_server listening on %s:%d\n", host.c_str(), port);
   std::fflush(stdout);
+  // A signal during warm-up is written to the pipe and acted on once warm-up is over.
+  pthread_sigmask(SIG_UNBLOCK, &shutdown_signals, nullptr);
   const auto warm = rim::server::WarmUp(config->warmup_frames);
   if (!warm.ok()) {
     std::cerr << "rim_server: warm-up failed: " << warm.status().message() << "\n";
@@ -180,19 +182,15 @@ int Run(int argc, char** argv) {
   std::cerr << "rim_server: warmed up in " << *warm << " s; serving\n";
   server->GetHealthCheckService()->SetServingStatus(true);
 
-  std::thread signal_thread([&] {
-    pthread_sigmask(SIG_UNBLOCK, &shutdown_signals, nullptr);
-    char signal = 0;
-    while (read(g_signal_pipe[0], &signal, 1) < 0 && errno == EINTR) {
-    }
-    std::cerr << "rim_server: signal " << int(signal) << ", shutting down\n";
-    server->GetHealthCheckService()->SetServingStatus(false);
-    sessions.BeginShutdown();
-    server->Shutdown(std::chrono::system_clock::now() +
-                     std::chrono::seconds(config->shutdown_deadline_s));
-  });
+  char signal = 0;
+  while (read(g_signal_pipe[0], &signal, 1) < 0 && errno == EINTR) {
+  }
+  std::cerr << "rim_server: signal " << int(signal) << ", shutting down\n";
+  server->GetHealthCheckService()->SetServingStatus(false);
+  sessions.BeginShutdown();
+  server->Shutdown(std::chrono::system_clock::now() +
+                   std::chrono::seconds(config->shutdown_deadline_s));
   server->Wait();
-  signal_thread.join();
   const absl::Status saved = sessions.CloseAll(/*save=*/true);
   if (!saved.ok()) {
     std::cerr << "rim_server: saving sessions failed: " << saved.message() << "\n";
