@@ -8,7 +8,9 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <poll.h>
 #include <signal.h>
+#include <sys/signalfd.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -75,15 +77,14 @@ int Run(int argc, char** argv) {
   std::cerr << "rim_server " << rim::kRimVersion << " effective config:\n"
             << config->ToString() << std::flush;
 
-  // SIGTERM and SIGINT reach a handler that only writes to a pipe; the main thread reads it and
-  // shuts down. Every thread started during set-up (gRPC's, the metrics exposer's, rim's) blocks
-  // both signals, and the main thread unblocks them before warm-up, so the kernel delivers them to
-  // the main thread (it gets first pick of a signal sent to the process), which after warm-up
-  // waits for them in read(). A handler on any other thread would also work in a normal build,
-  // but on a thread parked in a futex wait inside gRPC or Abseil, or on a thread started before
-  // main (OpenBLAS's pool, ThreadSanitizer's own), ThreadSanitizer defers it until that thread
-  // next enters its runtime, which can be never: rim_server then ignored SIGTERM. A full disk or
-  // a file-size limit must give write errors, not kill the process: SIGXFSZ is ignored, like
+  // SIGTERM and SIGINT are blocked on every thread rim and gRPC start, and the main thread waits
+  // for them with a signalfd: no signal handler has to run for a shutdown. A handler would run on
+  // whichever thread the kernel picks, and under ThreadSanitizer a handler on a thread parked in a
+  // futex inside gRPC or Abseil, or even on the main thread waiting in read(), is deferred until
+  // that thread next enters TSan's runtime, which can be never (rim_server then ignored SIGTERM).
+  // Threads started before main (OpenBLAS's pool) do not block the signals; one landing there
+  // runs a handler that writes to a pipe, which the main thread also waits on. A full disk or a
+  // file-size limit must give write errors, not kill the process: SIGXFSZ is ignored, like
   // SIGPIPE.
   if (pipe2(g_signal_pipe, O_CLOEXEC) != 0) {
     std::cerr << "rim_server: pipe2: " << std::strerror(errno) << "\n";
@@ -102,6 +103,12 @@ int Run(int argc, char** argv) {
   sigaddset(&shutdown_signals, SIGTERM);
   sigaddset(&shutdown_signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &shutdown_signals, nullptr);
+  // Readable while either signal is pending; one sent during warm-up waits here until it is over.
+  const int signal_fd = signalfd(-1, &shutdown_signals, SFD_CLOEXEC);
+  if (signal_fd < 0) {
+    std::cerr << "rim_server: signalfd: " << std::strerror(errno) << "\n";
+    return 1;
+  }
   // Exposure rule, tokens and TLS credentials (docs/security.md); a bad setting is exit 2.
   auto security = rim::server::SetUpSecurity(*config);
   if (!security.ok()) {
@@ -171,8 +178,6 @@ int Run(int argc, char** argv) {
   // Tests and scripts wait for this line (the port is resolved when --listen asks for port 0).
   std::printf("rim_server listening on %s:%d\n", host.c_str(), port);
   std::fflush(stdout);
-  // A signal during warm-up is written to the pipe and acted on once warm-up is over.
-  pthread_sigmask(SIG_UNBLOCK, &shutdown_signals, nullptr);
   const auto warm = rim::server::WarmUp(config->warmup_frames);
   if (!warm.ok()) {
     std::cerr << "rim_server: warm-up failed: " << warm.status().message() << "\n";
@@ -182,10 +187,18 @@ int Run(int argc, char** argv) {
   std::cerr << "rim_server: warmed up in " << *warm << " s; serving\n";
   server->GetHealthCheckService()->SetServingStatus(true);
 
-  char signal = 0;
-  while (read(g_signal_pipe[0], &signal, 1) < 0 && errno == EINTR) {
+  pollfd waits[2] = {{signal_fd, POLLIN, 0}, {g_signal_pipe[0], POLLIN, 0}};
+  while (poll(waits, 2, -1) < 0 && errno == EINTR) {
   }
-  std::cerr << "rim_server: signal " << int(signal) << ", shutting down\n";
+  int signal = 0;
+  if (waits[0].revents & POLLIN) {
+    signalfd_siginfo info = {};
+    if (read(signal_fd, &info, sizeof(info)) == ssize_t(sizeof(info))) signal = int(info.ssi_signo);
+  } else {
+    char c = 0;
+    if (read(g_signal_pipe[0], &c, 1) == 1) signal = c;
+  }
+  std::cerr << "rim_server: signal " << signal << ", shutting down\n";
   server->GetHealthCheckService()->SetServingStatus(false);
   sessions.BeginShutdown();
   server->Shutdown(std::chrono::system_clock::now() +
