@@ -16,24 +16,20 @@ void EncodeRange(const LocalMap& map, int l, const float* xyz, int begin, int en
   const int L = geo.levels(), D = geo.feature_dim();
   const LocalMap::Level& lv = map.level(l);
   const double inv_h = 1.0 / geo.voxel_m(l);
-  const Int3 dims = lv.dims;
   for (int p = begin; p < end; ++p) {
-    int s0[3], s1[3];
+    Int3 base;
     float f[3];
     for (int a = 0; a < 3; ++a) {
       const double u = double(xyz[3 * p + a]) * inv_h;
-      const double base = std::floor(u);
-      f[a] = float(u - base);
-      // Ring-buffer slots of the lower and upper corner along this axis.
-      s0[a] = PosMod(int(base), dims[a]);
-      s1[a] = s0[a] + 1 == dims[a] ? 0 : s0[a] + 1;
+      const double b = std::floor(u);
+      base[a] = int(b);
+      f[a] = float(u - b);
     }
     int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
+    map.CellSlots(l, base, slots);
     float* w = &enc->weights[(size_t(p) * L + l) * 8];
     for (int c = 0; c < 8; ++c) {
       const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-      slots[c] = (int64_t(cx ? s1[0] : s0[0]) * dims.y() + (cy ? s1[1] : s0[1])) * dims.z() +
-                 (cz ? s1[2] : s0[2]);
       w[c] = (cx ? f[0] : 1.f - f[0]) * (cy ? f[1] : 1.f - f[1]) * (cz ? f[2] : 1.f - f[2]);
     }
   }
@@ -186,16 +182,10 @@ void FeatureReader::Prefetch(const Vec3d& p_W) const {
     Int3 base;
     for (int a = 0; a < 3; ++a) base[a] = int(std::floor(p_W[a] * inv_h));
     if ((base.array() < box.lo.array()).any() || (base.array() >= box.hi.array()).any()) continue;
-    const LocalMap::Level& lv = map_.level(l);
-    int64_t s0[3], s1[3];
-    for (int a = 0; a < 3; ++a) {
-      s0[a] = PosMod(base[a], lv.dims[a]);
-      s1[a] = s0[a] + 1 == lv.dims[a] ? 0 : s0[a] + 1;
-    }
+    int64_t slots[8];
+    map_.CellSlots(l, base, slots);
     // Corners c and c + 1 differ in z only: mostly one cache line.
-    for (int c = 0; c < 8; c += 2)
-      __builtin_prefetch(lv.features(
-          ((c & 4 ? s1[0] : s0[0]) * lv.dims.y() + (c & 2 ? s1[1] : s0[1])) * lv.dims.z() + s0[2]));
+    for (int c = 0; c < 8; c += 2) __builtin_prefetch(map_.level(l).features(slots[c]));
   }
 }
 
@@ -216,26 +206,16 @@ void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
     std::fill_n(out, D, 0.f);
     float* jac = jacobian ? jacobian + size_t(l) * D * 3 : nullptr;
     if (jac) std::fill_n(jac, D * 3, 0.f);
-    // The 8 corner rows. When the whole cell is in the live box (the common case for queries
-    // near the robot), its slots follow from the lower corner's with a wrap per axis: 3 modulo
-    // operations for the cell instead of 3 per corner.
+    // The 8 corner rows: from one CellSlots lookup when the whole cell is in the live box (the
+    // common case for queries near the robot).
     const float* corner[8];
     const IntBox box = map_.LatticeBox(l);
     const bool inside = map_.placed() && (base.array() >= box.lo.array()).all() &&
                         (base.array() < box.hi.array()).all();
     if (inside) {
-      const LocalMap::Level& lv = map_.level(l);
-      int64_t s0[3], s1[3];
-      for (int a = 0; a < 3; ++a) {
-        s0[a] = PosMod(base[a], lv.dims[a]);
-        s1[a] = s0[a] + 1 == lv.dims[a] ? 0 : s0[a] + 1;
-      }
-      for (int c = 0; c < 8; ++c) {
-        const int64_t slot =
-            ((c & 4 ? s1[0] : s0[0]) * lv.dims.y() + (c & 2 ? s1[1] : s0[1])) * lv.dims.z() +
-            (c & 1 ? s1[2] : s0[2]);
-        corner[c] = lv.features(slot);
-      }
+      int64_t slots[8];
+      map_.CellSlots(l, base, slots);
+      for (int c = 0; c < 8; ++c) corner[c] = map_.level(l).features(slots[c]);
     }
     for (int c = 0; c < 8; ++c) {
       const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;

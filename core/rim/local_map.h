@@ -143,6 +143,21 @@ class LocalMap {
            PosMod(g.z(), d.z());
   }
 
+  // Storage slots of the 8 corners of the cell whose lower corner is lattice point g (g and
+  // g + (1, 1, 1) in the box), corner c at offset (c >> 2 & 1, c >> 1 & 1, c & 1): the lower
+  // corner's slot per axis and a wrap, 3 modulo operations for the cell instead of 24.
+  void CellSlots(int l, const Int3& g, int64_t slots[8]) const {
+    const Int3& d = levels_[l].dims;
+    int64_t s0[3], s1[3];
+    for (int a = 0; a < 3; ++a) {
+      s0[a] = PosMod(g[a], d[a]);
+      s1[a] = s0[a] + 1 == d[a] ? 0 : s0[a] + 1;
+    }
+    for (int c = 0; c < 8; ++c)
+      slots[c] = ((c & 4 ? s1[0] : s0[0]) * d.y() + (c & 2 ? s1[1] : s0[1])) * d.z() +
+                 (c & 1 ? s1[2] : s0[2]);
+  }
+
   // Moves the box to a new coarse origin (§3.2 slab exchange): voxels leaving the box are given to
   // `save` and their storage is reset, Adam moments included; voxels entering are filled by
   // `load`, or left zero. The first call places the box and loads all of it.
