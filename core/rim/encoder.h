@@ -38,6 +38,8 @@ class SparseGradient {
   // the touched slots. With a pool, one level per task.
   void Scatter(LocalMap* map, const LocalEncoding& enc, const float* grad_features,
                WorkerPool* pool = nullptr);
+  // One level of Scatter: levels are independent, so a caller may run them as its own tasks.
+  void ScatterLevel(LocalMap* map, const LocalEncoding& enc, const float* grad_features, int l);
   struct Level {
     std::vector<int64_t> touched;  // slots with a gradient row, in first-touch order
     std::vector<float> grad;       // row r at [r·D, (r+1)·D) for r < touched.size()
@@ -50,8 +52,6 @@ class SparseGradient {
   }
 
  private:
-  void ScatterLevel(LocalMap* map, const LocalEncoding& enc, const float* grad_features, int l);
-
   std::vector<Level> levels_;
   uint32_t stamp_ = 0;
 };

@@ -1,12 +1,22 @@
 #include "rim/trainer.h"
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <thread>
+#include <vector>
 
 #include "rim/train_step.h"
 
 namespace rim {
 namespace {
+void CpuRelax() {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#else
+  std::this_thread::yield();
+#endif
+}
 double Now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
@@ -95,14 +105,12 @@ absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming*
   double t3 = Now();
 
   grad_.BeginIteration(map_);
-  grad_.Scatter(map_, encoding_, out->grad_features.data(), &pool_);
-  ApplyFeatureUpdates();
+  UpdateFeatures(out->grad_features.data());
   if (train_decoder) {
     const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                           config_.train.adam_beta2, config_.train.adam_eps};
     decoder_->Step(hyper, out->grad_params);
   }
-  MarkObserved();
   double t4 = Now();
   if (timing) {
     timing->sample_s += t1 - t0;
@@ -147,19 +155,48 @@ void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
   }
 }
 
-void Trainer::ApplyFeatureUpdates() {
+void Trainer::UpdateFeatures(const float* grad_features) {
   const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                         config_.train.adam_beta2, config_.train.adam_eps};
-  // Touched rows are distinct slots, so any split of them is race-free: (level, chunk) tasks.
+  const int L = map_->geometry().levels();
   const int chunks = pool_.threads();
-  pool_.Run(map_->geometry().levels() * chunks, [&](int task) {
-    const int l = task / chunks, c = task % chunks;
-    LocalMap::Level& lv = map_->level(l);
-    SparseGradient::Level& g = grad_.level(l);
-    // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
-    const size_t n = g.touched.size();
-    const size_t begin = n * size_t(c) / size_t(chunks), end = n * size_t(c + 1) / size_t(chunks);
-    UpdateTouchedRows(hyper, bias_, g, begin, end, &lv);
+  // One region, three kinds of task, numbered in the order the pool hands them out:
+  //   [0, L)                    scatter of level l (its rows and sums need no other level);
+  //   [L, L + chunks)           lazy Adam on a chunk of level 0's touched rows, once level 0 is
+  //                             scattered (rows are distinct slots: chunks never share one);
+  //   L + chunks                observed marking, once every Adam chunk of level 0 is done
+  //                             (both set bits in level 0's flag bytes);
+  //   then                      the Adam chunks of levels 1 … L − 1, likewise.
+  // A task only ever waits for tasks with smaller numbers, which some thread has already taken,
+  // so the waits end; with one thread nothing waits. Without barriers between the stages, the
+  // levels' unequal scatters and Adam passes do not leave a thread idle.
+  std::vector<std::atomic<int>>& scattered = stage_flags_;  // per level, then level 0's Adam
+  if (int(scattered.size()) != L + 1) scattered = std::vector<std::atomic<int>>(L + 1);
+  for (auto& f : scattered) f.store(0, std::memory_order_relaxed);
+  std::atomic<int>& level0_done = scattered[L];
+  auto wait_for = [](const std::atomic<int>& v, int value) {
+    while (v.load(std::memory_order_acquire) < value) CpuRelax();
+  };
+  const int mark_task = L + chunks;
+  pool_.Run(L + L * chunks + 1, [&](int task) {
+    if (task < L) {
+      grad_.ScatterLevel(map_, encoding_, grad_features, task);
+      scattered[task].store(1, std::memory_order_release);
+    } else if (task != mark_task) {
+      const int adam = task < mark_task ? task - L : task - L - 1;
+      const int l = adam / chunks, c = adam % chunks;
+      wait_for(scattered[l], 1);
+      SparseGradient::Level& g = grad_.level(l);
+      // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
+      const size_t n = g.touched.size();
+      const size_t begin = n * size_t(c) / size_t(chunks);
+      const size_t end = n * size_t(c + 1) / size_t(chunks);
+      UpdateTouchedRows(hyper, bias_, g, begin, end, &map_->level(l));
+      if (l == 0) level0_done.fetch_add(1, std::memory_order_release);
+    } else {
+      wait_for(level0_done, chunks);
+      MarkObserved();
+    }
   });
 }
 

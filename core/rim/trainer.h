@@ -2,6 +2,7 @@
 // the decoder and on only the voxels the batch touched.
 #pragma once
 
+#include <atomic>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -45,7 +46,8 @@ class Trainer {
  private:
   absl::StatusOr<float> TrainOnBatch(bool train_decoder, IterationTiming* timing);
   void AddEikonalProbes();
-  void ApplyFeatureUpdates();
+  // Gradient scatter, lazy Adam on the touched rows and observed marking, in one pool region.
+  void UpdateFeatures(const float* grad_features);
   void MarkObserved();
 
   MapperConfig config_;
@@ -60,6 +62,7 @@ class Trainer {
   TrainStepOutput step_out_;
   SparseGradient grad_;
   AdamBiasTable bias_;
+  std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: levels scattered, level 0 done
   bool grad_ready_ = false;
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };

@@ -26,7 +26,9 @@ class WorkerPool {
 
   // Runs fn(0) … fn(tasks − 1), each exactly once, spread over the threads in the order of their
   // index (a thread takes the next task when it finishes one); returns when all have finished.
-  // fn must not throw. Not reentrant: one Run at a time per pool.
+  // Tasks are handed out in increasing index order, so a task may wait (spin) for one with a
+  // smaller index: that one has been taken by a running thread. fn must not throw. Not
+  // reentrant: one Run at a time per pool.
   void Run(int tasks, const std::function<void(int)>& fn);
 
  private:

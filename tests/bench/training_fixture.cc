@@ -107,7 +107,7 @@ void TrainingFixture::Scatter() {
   gradient_.Scatter(map_.get(), encoding_, step_output_.grad_features.data());
 }
 
-// What Trainer::ApplyFeatureUpdates runs, on one thread.
+// What Trainer::UpdateFeatures runs after the scatter, on one thread.
 void TrainingFixture::AdamFeatures() {
   const AdamHyper hyper = Hyper(config_.train);
   for (int l = 0; l < geometry_->levels(); ++l) {
