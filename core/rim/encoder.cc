@@ -44,6 +44,16 @@ void EncodeRange(const LocalMap& map, int l, const float* xyz, int begin, int en
     const int64_t* slots = &enc->slots[(size_t(p) * L + l) * 8];
     const float* w = &enc->weights[(size_t(p) * L + l) * 8];
     float* out = features + size_t(p) * L * D + size_t(l) * D;
+    if (D == 8) {  // every preset: the sum stays in registers instead of going through `out`
+      float acc[8] = {};
+      for (int c = 0; c < 8; ++c) {
+        const float* feat = lv.features(slots[c]);
+        const float wc = w[c];
+        for (int d = 0; d < 8; ++d) acc[d] += wc * feat[d];
+      }
+      std::copy_n(acc, 8, out);
+      continue;
+    }
     std::fill_n(out, D, 0.f);
     for (int c = 0; c < 8; ++c) {
       const float* feat = lv.features(slots[c]);
