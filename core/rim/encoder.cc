@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "rim/half.h"
+
 namespace rim {
 
 namespace {
@@ -154,7 +156,10 @@ void SparseGradient::ScatterLevel(LocalMap* map, const LocalEncoding& enc,
 }
 
 FeatureReader::FeatureReader(const LocalMap& map, const SubmapStore& store)
-    : map_(map), store_(store), zeros_(map.geometry().feature_dim(), 0.f) {}
+    : map_(map),
+      store_(store),
+      zeros_(map.geometry().feature_dim(), 0.f),
+      widened_(map.geometry().feature_dim()) {}
 
 FeatureReader::Slot FeatureReader::Fetch(int level, const Int3& g) {
   const SubmapStore::BlockAddress a = store_.Address(level, g);
@@ -178,7 +183,9 @@ const float* FeatureReader::Get(int level, const Int3& g) {
   }
   const Slot s = Fetch(level, g);
   if (s.block == nullptr) return zeros_.data();
-  return &s.block->features[size_t(s.index) * map_.geometry().feature_dim()];
+  const size_t D = size_t(map_.geometry().feature_dim());
+  HalvesToFloats(&s.block->features[size_t(s.index) * D], D, widened_.data());
+  return widened_.data();
 }
 
 uint8_t FeatureReader::ObservedBits(const Int3& g0) {

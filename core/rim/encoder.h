@@ -97,6 +97,7 @@ class FeatureReader {
   const SubmapStore::Block* last_block_[kMaxLevels] = {};
   bool last_valid_[kMaxLevels] = {};
   std::vector<float> zeros_;
+  std::vector<float> widened_;  // a store row (half floats) as floats, for Get
 };
 
 }  // namespace rim

@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "rim/binary_io.h"
+#include "rim/half.h"
 #include "rim/status_macros.h"
 
 namespace rim {
@@ -27,7 +28,7 @@ SubmapStore::SubmapStore(const MapGeometry& geometry, const SubmapConfig& config
 
 int64_t SubmapStore::BlockBytes(int level) const {
   const int64_t b3 = int64_t(config_.block_size) * config_.block_size * config_.block_size;
-  return b3 * geometry_.feature_dim() * int64_t(sizeof(float)) + (level == 0 ? b3 : 0);
+  return b3 * geometry_.feature_dim() * int64_t(sizeof(uint16_t)) + (level == 0 ? b3 : 0);
 }
 
 std::string SubmapStore::SpillPath(const Int3& key) const {
@@ -91,7 +92,7 @@ void SubmapStore::Write(const SlabBatch& batch) {
     auto [it, inserted] = cached_submap->blocks[l].try_emplace(block_key);
     if (inserted) {
       it->second = std::make_shared<Block>();
-      it->second->features.assign(size_t(B) * B * B * D, 0.f);
+      it->second->features.assign(size_t(B) * B * B * D, uint16_t(0));
       if (l == 0) it->second->observed.assign(size_t(B) * B * B, 0);
       cached_submap->bytes += BlockBytes(l);
       host_bytes_ += BlockBytes(l);
@@ -102,7 +103,7 @@ void SubmapStore::Write(const SlabBatch& batch) {
     Block& block = *it->second;
     const Int3 in = local - block_key * B;
     const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
-    std::memcpy(&block.features[idx * D], &batch.features[i * D], sizeof(float) * D);
+    FloatsToHalves(&batch.features[i * D], size_t(D), &block.features[idx * D]);
     if (l == 0 && i < batch.observed.size()) block.observed[idx] = batch.observed[i];
   }
 }
@@ -120,7 +121,7 @@ bool SubmapStore::Read(int level, const Int3& g, float* features, uint8_t* obser
   if (it == s->blocks[level].end()) return false;
   const Int3 in = local - block_key * B;
   const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
-  std::memcpy(features, &it->second->features[idx * D], sizeof(float) * D);
+  HalvesToFloats(&it->second->features[idx * D], size_t(D), features);
   if (observed) *observed = level == 0 ? it->second->observed[idx] : 0;
   return true;
 }
@@ -254,6 +255,7 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
   w.I32(key.z());
   w.U64(s.version);
   w.I32(geometry_.levels());
+  std::vector<float> wide;
   w.I32(geometry_.feature_dim());
   w.I32(config_.block_size);
   for (int l = 0; l < geometry_.levels(); ++l) {
@@ -269,7 +271,12 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
       w.I32(kv->first.x());
       w.I32(kv->first.y());
       w.I32(kv->first.z());
-      w.FloatArray(kv->second->features.data(), kv->second->features.size());
+      // On disk as float32, the format checkpoints have always had: the halves widen exactly,
+      // and narrow back to the same halves on load.
+      const std::vector<uint16_t>& h = kv->second->features;
+      wide.resize(h.size());
+      HalvesToFloats(h.data(), h.size(), wide.data());
+      w.FloatArray(wide.data(), wide.size());
       w.PodVector(kv->second->observed);
     }
   }
@@ -296,6 +303,7 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
   Int3 key;
   uint64_t version;
   int32_t levels, dim, block;
+  std::vector<float> wide;
   RIM_RETURN_IF_ERROR(r.I32(&key.x()));
   RIM_RETURN_IF_ERROR(r.I32(&key.y()));
   RIM_RETURN_IF_ERROR(r.I32(&key.z()));
@@ -335,10 +343,12 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
         return absl::DataLossError(absl::StrCat(context, ": block ", SubmapKeyName(bk),
                                                 " at level ", l, " lies outside its sub-map"));
       auto b = std::make_shared<Block>();
-      RIM_RETURN_IF_ERROR(r.FloatArray(&b->features));
+      RIM_RETURN_IF_ERROR(r.FloatArray(&wide));
       RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));
-      if (b->features.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
+      if (wide.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
         return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
+      b->features.resize(wide.size());
+      FloatsToHalves(wide.data(), wide.size(), b->features.data());
       s.blocks[l].emplace(bk, std::move(b));
       s.bytes += BlockBytes(l);
     }

@@ -33,7 +33,8 @@ class SubmapStore {
  public:
   SubmapStore(const MapGeometry& geometry, const SubmapConfig& config);
 
-  // Stores the voxels of a slab that left the local map, replacing what was there.
+  // Stores the voxels of a slab that left the local map, replacing what was there (features
+  // rounded to half precision, RoundToHalf).
   void Write(const SlabBatch& batch);
   // Reads one voxel; false (and nothing written) when the store has no data there.
   bool Read(int level, const Int3& g, float* features, uint8_t* observed) const;
@@ -47,9 +48,12 @@ class SubmapStore {
   BlockAddress Address(int level, const Int3& g) const;
   int block_voxels() const { return config_.block_size * config_.block_size * config_.block_size; }
 
+  // Features are stored as IEEE half floats (rim/half.h): the global map is most of a long
+  // session's memory, and features that no longer train lose nothing that matters at 11
+  // significant bits (relative error ≤ 2^-11; DESIGN.md's accuracy checks run on the result).
   struct Block {
-    std::vector<float> features;    // block³ · D, index (x·B + y)·B + z
-    std::vector<uint8_t> observed;  // block³, level 0 only
+    std::vector<uint16_t> features;  // block³ · D halves, index (x·B + y)·B + z
+    std::vector<uint8_t> observed;   // block³, level 0 only
   };
   // The block holding lattice point g, shared and immutable: a later Write to it copies it
   // first, so a reader may keep using what it got without a lock. Null when the store has no

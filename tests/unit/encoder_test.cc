@@ -17,6 +17,7 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "rim/config.h"
+#include "rim/half.h"
 #include "rim/local_map.h"
 #include "rim/map_geometry.h"
 #include "rim/submap_store.h"
@@ -390,9 +391,11 @@ TEST_F(EncoderTest, FeatureReaderReadsTheStoreOutsideTheBoxAndZerosWhereUnknown)
           if (map_.InBox(l, g) || (x + y + z) % 5 == 0) continue;
           std::vector<float> f(D);
           for (float& v : f) v = u(rng);
-          world[{l, x, y, z}] = f;
           batch.points.push_back(g);
           batch.features.insert(batch.features.end(), f.begin(), f.end());
+          // The store keeps half floats: reads give the written values rounded to half.
+          for (float& v : f) v = RoundToHalf(v);
+          world[{l, x, y, z}] = f;
           if (l == 0) {
             const uint8_t obs = uint8_t(rng() & 1);
             batch.observed.push_back(obs);

@@ -23,11 +23,18 @@
 
 #include "gtest/gtest.h"
 #include "rim/config.h"
+#include "rim/half.h"
 #include "rim/map_geometry.h"
 #include "rim/slab_saver.h"
 
 namespace rim {
 namespace {
+
+std::vector<uint16_t> Halves(const std::vector<float>& v) {
+  std::vector<uint16_t> h(v.size());
+  for (size_t i = 0; i < v.size(); ++i) h[i] = FloatToHalf(v[i]);
+  return h;
+}
 
 namespace fs = std::filesystem;
 
@@ -92,9 +99,13 @@ void WriteRandomVoxels(SubmapStore* store, Reference* ref, std::mt19937_64* rng,
     if (!in_batch.insert({l, g.x(), g.y(), g.z()}).second) continue;
     batch.points.push_back(g);
     Expected e;
-    for (int d = 0; d < D; ++d) e.features.push_back(value(*rng));
+    for (int d = 0; d < D; ++d) {
+      // The store keeps half floats: it reads back the written value rounded to half precision.
+      const float v = value(*rng);
+      batch.features.push_back(v);
+      e.features.push_back(RoundToHalf(v));
+    }
     e.observed = l == 0 ? uint8_t((*rng)() % 2) : 0;
-    batch.features.insert(batch.features.end(), e.features.begin(), e.features.end());
     if (l == 0) batch.observed.push_back(e.observed);
     (*ref)[{l, g.x(), g.y(), g.z()}] = e;
   }
@@ -243,7 +254,8 @@ TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
     auto block = store.ReadBlock(l, g);
     ASSERT_NE(block, nullptr);
     const SubmapStore::BlockAddress a = store.Address(l, g);
-    ASSERT_EQ(std::memcmp(&block->features[size_t(a.index) * D], e.features.data(), 4 * D), 0);
+    ASSERT_EQ(std::memcmp(&block->features[size_t(a.index) * D], Halves(e.features).data(), 2 * D),
+              0);
     if (l == 0) {
       ASSERT_EQ(block->observed[size_t(a.index)], e.observed);
     }
@@ -268,7 +280,7 @@ TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
   batch.features.assign(D, 42.f);
   if (l == 0) batch.observed.push_back(1);
   store.Write(batch);
-  EXPECT_EQ(std::memcmp(&held->features[size_t(index) * D], e.features.data(), 4 * D), 0);
+  EXPECT_EQ(std::memcmp(&held->features[size_t(index) * D], Halves(e.features).data(), 2 * D), 0);
   ASSERT_TRUE(store.Read(l, Int3(x, y, z), f.data(), nullptr));
   EXPECT_EQ(f, std::vector<float>(D, 42.f));
   EXPECT_NE(store.ReadBlock(l, Int3(x, y, z)).get(), held.get());
@@ -278,8 +290,8 @@ TEST_F(SubmapStoreTest, SparseStorageCountsBlocks) {
   const int B = config_.submap.block_size;
   const int D = geometry_.feature_dim();
   const int64_t b3 = int64_t(B) * B * B;
-  const int64_t level0_bytes = b3 * D * 4 + b3;
-  const int64_t upper_bytes = b3 * D * 4;
+  const int64_t level0_bytes = b3 * D * 2 + b3;  // half-float features, observed bytes
+  const int64_t upper_bytes = b3 * D * 2;
   SubmapStore store(geometry_, config_.submap);
   EXPECT_EQ(store.Stats().blocks, 0);
   EXPECT_EQ(store.Stats().host_bytes, 0);
@@ -622,7 +634,8 @@ TEST_F(SubmapStoreTest, BackgroundSaverWithConcurrentReaders) {
     for (const auto& [key, v] : ref) {
       const auto [l, x, y, z] = key;
       uint8_t obs = 0;
-      if (!store.Read(l, Int3(x, y, z), f.data(), &obs) || f != std::vector<float>(D, v) ||
+      if (!store.Read(l, Int3(x, y, z), f.data(), &obs) ||
+          f != std::vector<float>(D, RoundToHalf(v)) ||
           (l == 0 && obs != (uint8_t(v) & 1)))
         ++bad;
     }
