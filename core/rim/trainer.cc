@@ -202,7 +202,7 @@ void Trainer::UpdateFeatures(const float* grad_features) {
 
 void Trainer::MarkObserved() {
   LocalMap::Level& lv = map_->level(0);
-  const double inv_s = 1.0 / map_->geometry().leaf_m();
+  const size_t L = size_t(map_->geometry().levels());
   const float band = config_.sampler.observed_band_m;
   for (size_t i = 0; i < batch_.size(); ++i) {
     // Near the surface: observed and meshed. Well in front of it: seen free, so a query there
@@ -216,10 +216,9 @@ void Trainer::MarkObserved() {
     } else {
       continue;
     }
-    const Int3 g(int(std::floor(batch_.xyz[3 * i] * inv_s)),
-                 int(std::floor(batch_.xyz[3 * i + 1] * inv_s)),
-                 int(std::floor(batch_.xyz[3 * i + 2] * inv_s)));
-    lv.flags(map_->Slot(0, g)) |= bits | LocalMap::kHasData;
+    // The finest voxel holding the sample is the minimum corner (corner 0) of its level-0 cell,
+    // whose slot the encode already found.
+    lv.flags(encoding_.slots[i * L * 8]) |= bits | LocalMap::kHasData;
   }
 }
 
