@@ -88,9 +88,12 @@ void Mapper::SlideTo(const Vec3d& position_W) {
   // Leaving slabs go to the saver thread; before reading entering slabs from the store, wait for
   // earlier writes so that a slab that left and comes back is read as it was saved.
   saver_->Flush();
+  SubmapStore::CachedReader reader(*store_);  // entering voxels come in runs along z
   local_map_->MoveTo(
       origin, [this](SlabBatch&& b) { saver_->Submit(std::move(b)); },
-      [this](int l, const Int3& g, float* f, uint8_t* obs) { return store_->Read(l, g, f, obs); });
+      [&reader](int l, const Int3& g, float* f, uint8_t* obs) {
+        return reader.Read(l, g, f, obs);
+      });
 }
 
 void Mapper::Preprocess(const PosedScan& scan) {

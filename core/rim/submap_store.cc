@@ -147,6 +147,32 @@ std::shared_ptr<const SubmapStore::Block> SubmapStore::ReadBlock(int level, cons
   return it->second;
 }
 
+bool SubmapStore::CachedReader::Read(int level, const Int3& g, float* features, uint8_t* observed) {
+  const Int3& last = last_[level];
+  if (valid_[level] && g.z() == last.z() + 1 && g.x() == last.x() && g.y() == last.y() &&
+      g.z() < z_end_[level]) {
+    ++index_[level];
+  } else {
+    const BlockAddress a = store_.Address(level, g);
+    if (!valid_[level] || origin_[level] != a.origin) {
+      block_[level] = store_.ReadBlock(level, g);
+      origin_[level] = a.origin;
+      valid_[level] = true;
+    }
+    index_[level] = a.index;
+    const int cells_z = store_.geometry_.cells(level).z();
+    const int submap_end_z = (store_.geometry_.SubmapOfLattice(level, g).z() + 1) * cells_z;
+    z_end_[level] = std::min(a.origin.z() + store_.config_.block_size, submap_end_z);
+  }
+  last_[level] = g;
+  const Block* b = block_[level].get();
+  if (b == nullptr) return false;
+  const size_t D = size_t(store_.geometry_.feature_dim()), index = size_t(index_[level]);
+  HalvesToFloats(&b->features[index * D], D, features);
+  if (observed) *observed = level == 0 ? b->observed[index] : 0;
+  return true;
+}
+
 std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
   const int B = config_.block_size;
   std::vector<Int3> out;

@@ -60,6 +60,27 @@ class SubmapStore {
   // data there. Readers that visit many neighbouring points pay one lock and one lookup per
   // block instead of one per point, and copy nothing.
   std::shared_ptr<const Block> ReadBlock(int level, const Int3& g) const;
+
+  // Read for a caller that visits many neighbouring voxels (a slab entering the local map): it
+  // keeps the last block it visited per level, absent ones included, so a run of voxels in one
+  // block costs one lock and one lookup. What it returns is the block as it was when first
+  // visited (ReadBlock's snapshot). One reader per thread.
+  class CachedReader {
+   public:
+    explicit CachedReader(const SubmapStore& store) : store_(store) {}
+    bool Read(int level, const Int3& g, float* features, uint8_t* observed);
+
+   private:
+    const SubmapStore& store_;
+    bool valid_[kMaxLevels] = {};
+    Int3 origin_[kMaxLevels];
+    std::shared_ptr<const Block> block_[kMaxLevels];
+    // The last point read per level, its index in the block and the end (exclusive) of the
+    // block's z range, which a sub-map border may cut short: the next z before that end is the
+    // next index, with no address arithmetic (divisions).
+    Int3 last_[kMaxLevels];
+    int index_[kMaxLevels] = {}, z_end_[kMaxLevels] = {};
+  };
   // Finest-level lattice indices of observed voxels stored in a sub-map.
   std::vector<Int3> ObservedCells(const Int3& key) const;
 

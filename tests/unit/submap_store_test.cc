@@ -241,6 +241,41 @@ TEST_F(SubmapStoreTest, SaveToLoadFromRoundTrip) {
 
 // ReadBlock hands out the store's block without a copy; every voxel of it matches Read, and a
 // later Write to it leaves the reader's snapshot alone (copy on write) while the store moves on.
+TEST_F(SubmapStoreTest, CachedReaderReadsWhatReadReads) {
+  SubmapStore store(geometry_, config_.submap);
+  Reference ref;
+  Fill(&store, &ref);
+  const int D = geometry_.feature_dim();
+  // Walks as a slab enters the local map (z runs across block and sub-map borders, stored and
+  // absent blocks), then the same points in a random order, each through one reader.
+  for (const bool shuffled : {false, true}) {
+    SubmapStore::CachedReader reader(store);
+    std::mt19937_64 rng(9);
+    int64_t found = 0, absent = 0;
+    for (int l = 0; l < geometry_.levels(); ++l) {
+      const Int3 c = geometry_.cells(l);
+      const Int3 lo = -c / 2, hi = Int3(c.x() / 2, c.y() / 2, c.z() + c.z() / 2);
+      std::vector<Int3> points;
+      for (int x = lo.x(); x < hi.x(); x += 3)
+        for (int y = lo.y(); y < hi.y(); y += 2)
+          for (int z = lo.z(); z < hi.z(); ++z) points.push_back(Int3(x, y, z));
+      if (shuffled) std::shuffle(points.begin(), points.end(), rng);
+      for (const Int3& g : points) {
+        std::vector<float> want(D, -9.f), got(D, -9.f);
+        uint8_t want_obs = 7, got_obs = 7;
+        const bool want_ok = store.Read(l, g, want.data(), &want_obs);
+        ASSERT_EQ(reader.Read(l, g, got.data(), &got_obs), want_ok)
+            << "level " << l << " " << g.transpose();
+        ASSERT_EQ(got, want) << "level " << l << " " << g.transpose();
+        ASSERT_EQ(got_obs, want_obs) << "level " << l << " " << g.transpose();
+        (want_ok ? found : absent)++;
+      }
+    }
+    EXPECT_GT(found, 1000) << "the walk must cover stored blocks";
+    EXPECT_GT(absent, 1000) << "and places with nothing stored";
+  }
+}
+
 TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
   SubmapStore store(geometry_, config_.submap);
   Reference ref;
@@ -635,8 +670,7 @@ TEST_F(SubmapStoreTest, BackgroundSaverWithConcurrentReaders) {
       const auto [l, x, y, z] = key;
       uint8_t obs = 0;
       if (!store.Read(l, Int3(x, y, z), f.data(), &obs) ||
-          f != std::vector<float>(D, RoundToHalf(v)) ||
-          (l == 0 && obs != (uint8_t(v) & 1)))
+          f != std::vector<float>(D, RoundToHalf(v)) || (l == 0 && obs != (uint8_t(v) & 1)))
         ++bad;
     }
     EXPECT_EQ(bad, 0);
