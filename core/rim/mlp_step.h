@@ -1,5 +1,6 @@
 // The training step's decoder part (loss, its gradient with respect to the encoded features and
-// to the decoder's parameters) written out by hand as dense Eigen products over the batch.
+// to the decoder's parameters) written out by hand: dense Eigen products over the batch, or for
+// the presets' one-hidden-layer decoder, AVX2/FMA kernels where the CPU has them.
 //
 // It computes what RunTrainStep (train_step.h, libtorch autograd) computes, without libtorch's
 // per-operation overhead and without a BLAS library: the decoder is a few narrow layers, so a
@@ -29,6 +30,14 @@ class MlpTrainStep {
 
   static constexpr int kChunkRows = 2048;
 
+  // The decoder of every preset (one hidden layer, input and hidden widths multiples of 8, up
+  // to 64) goes through hand-written AVX2/FMA kernels for the forward pass and the feature
+  // gradient when the CPU has those instructions (checked at run time; the build stays
+  // baseline x86-64). Off, or on other CPUs and shapes: the Eigen products. The two agree to
+  // float rounding; each is the same for any thread count.
+  static bool VectorKernelsAvailable();
+  void set_vector_kernels(bool on) { vector_kernels_ = on; }
+
  private:
   using RowMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   struct Work {
@@ -38,6 +47,9 @@ class MlpTrainStep {
   RowMatrix grad_;              // d loss / d output, n × 1
   std::vector<Work> work_;      // per chunk
   std::vector<std::vector<float>> chunk_grad_params_;
+  std::vector<float> w0_transposed_;  // first layer's weights, in × out, for the kernels
+  std::vector<double> chunk_loss_;    // per chunk: its labelled rows' loss terms
+  bool vector_kernels_ = true;
 };
 
 }  // namespace rim

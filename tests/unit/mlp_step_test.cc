@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "gtest/gtest.h"
@@ -65,30 +67,79 @@ TEST_P(MlpStepTest, MatchesLibtorchAutograd) {
   in.train_decoder = c.train_decoder;
   auto ref = RunTrainStep(decoder, in);
   ASSERT_TRUE(ref.ok()) << ref.status();
-  MlpTrainStep fast;
-  TrainStepOutput out;
-  // Twice: the second call reuses the first one's buffers and must give the same result.
-  for (int run = 0; run < 2; ++run) {
-    ASSERT_TRUE(fast.Run(decoder, in, &out).ok());
-    EXPECT_NEAR(out.loss, ref->loss, 1e-5f * std::abs(ref->loss)) << "run " << run;
-    EXPECT_LT(MaxRelDiff(out.grad_features, ref->grad_features), 1e-4f) << "run " << run;
-    if (c.train_decoder) {
-      EXPECT_LT(MaxRelDiff(out.grad_params, ref->grad_params), 1e-4f) << "run " << run;
-    } else {
-      EXPECT_TRUE(out.grad_params.empty());
+  // Both forms of the fast step: the AVX2/FMA kernels (where this CPU has them; the one-hidden-
+  // layer cases use them) and the Eigen products.
+  for (const bool vector_kernels : {true, false}) {
+    SCOPED_TRACE(vector_kernels ? "vector kernels" : "Eigen products");
+    MlpTrainStep fast;
+    fast.set_vector_kernels(vector_kernels);
+    TrainStepOutput out;
+    // Twice: the second call reuses the first one's buffers and must give the same result.
+    for (int run = 0; run < 2; ++run) {
+      ASSERT_TRUE(fast.Run(decoder, in, &out).ok());
+      EXPECT_NEAR(out.loss, ref->loss, 1e-5f * std::abs(ref->loss)) << "run " << run;
+      EXPECT_LT(MaxRelDiff(out.grad_features, ref->grad_features), 1e-4f) << "run " << run;
+      if (c.train_decoder) {
+        EXPECT_LT(MaxRelDiff(out.grad_params, ref->grad_params), 1e-4f) << "run " << run;
+      } else {
+        EXPECT_TRUE(out.grad_params.empty());
+      }
+    }
+    // Spread over threads: bit for bit the same (rows go in fixed chunks whatever the threads).
+    WorkerPool pool(3);
+    TrainStepOutput threaded;
+    ASSERT_TRUE(fast.Run(decoder, in, &threaded, &pool).ok());
+    EXPECT_EQ(threaded.loss, out.loss);
+    EXPECT_EQ(threaded.grad_features, out.grad_features);
+    EXPECT_EQ(threaded.grad_params, out.grad_params);
+    // The gradient is not trivially zero.
+    float norm = 0.f;
+    for (float g : out.grad_features) norm += g * g;
+    EXPECT_GT(norm, 0.f);
+  }
+}
+
+// The kernels against the Eigen products on the preset's shape and on the other widths they
+// take (8–64 hidden units, 8–64 inputs), with dead ReLUs and a zero upstream gradient in the
+// batch. Skipped on CPUs without AVX2 and FMA, where only the Eigen form runs.
+TEST(MlpStepKernelTest, VectorKernelsMatchTheEigenProducts) {
+  if (!MlpTrainStep::VectorKernelsAvailable())
+    GTEST_SKIP() << "this CPU has no AVX2/FMA: the vector kernels never run here";
+  for (const auto [inputs, width] :
+       {std::pair{24, 32}, std::pair{8, 8}, std::pair{64, 64}, std::pair{16, 40}}) {
+    for (const bool train : {false, true}) {
+      SCOPED_TRACE("inputs " + std::to_string(inputs) + " width " + std::to_string(width) +
+                   (train ? " training" : " frozen"));
+      DecoderConfig dc;
+      dc.hidden_layers = 1;
+      dc.hidden_width = width;
+      dc.seed = 5;
+      Decoder decoder(inputs, dc);
+      const int rows = 3000, labelled = 2400;
+      std::mt19937 rng(8);
+      std::uniform_real_distribution<float> feature(-1.f, 1.f), label(-0.4f, 0.4f);
+      std::vector<float> features(size_t(rows) * inputs), labels(labelled);
+      for (float& f : features) f = feature(rng);
+      for (float& l : labels) l = label(rng);
+      TrainStepInput in;
+      in.features = features.data();
+      in.rows = rows;
+      in.labelled = labelled;
+      in.labels = labels.data();
+      in.sigma_m = 0.05f;
+      in.eikonal_weight = 0.1f;
+      in.eikonal_step_m = 0.05f;
+      in.train_decoder = train;
+      MlpTrainStep kernels, eigen;
+      eigen.set_vector_kernels(false);
+      TrainStepOutput a, b;
+      ASSERT_TRUE(kernels.Run(decoder, in, &a).ok());
+      ASSERT_TRUE(eigen.Run(decoder, in, &b).ok());
+      EXPECT_NEAR(a.loss, b.loss, 1e-6f * std::abs(b.loss));
+      EXPECT_LT(MaxRelDiff(a.grad_features, b.grad_features), 1e-5f);
+      if (train) EXPECT_LT(MaxRelDiff(a.grad_params, b.grad_params), 1e-5f);
     }
   }
-  // Spread over threads: bit for bit the same (rows go in fixed chunks whatever the threads).
-  WorkerPool pool(3);
-  TrainStepOutput threaded;
-  ASSERT_TRUE(fast.Run(decoder, in, &threaded, &pool).ok());
-  EXPECT_EQ(threaded.loss, out.loss);
-  EXPECT_EQ(threaded.grad_features, out.grad_features);
-  EXPECT_EQ(threaded.grad_params, out.grad_params);
-  // The gradient is not trivially zero.
-  float norm = 0.f;
-  for (float g : out.grad_features) norm += g * g;
-  EXPECT_GT(norm, 0.f);
 }
 
 INSTANTIATE_TEST_SUITE_P(Decoders, MlpStepTest,
