@@ -135,7 +135,7 @@ void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadF
       batch.level = l;
       ForEachInDifference(old_box, new_box, [&](const Int3& g) {
         const int64_t slot = slot_of(g);
-        if (!(lv.flags(slot) & kHasData)) return;
+        if (!lv.has_data(slot)) return;
         batch.points.push_back(g);
         batch.features.insert(batch.features.end(), lv.features(slot), lv.features(slot) + D);
         if (l == 0) batch.observed.push_back(lv.flags(slot) & kObservedBits);

@@ -64,6 +64,10 @@ class LocalMap {
     int32_t adam_steps(int64_t slot) const { return steps_[slot]; }
     uint8_t& flags(int64_t slot) { return flags_[slot]; }
     uint8_t flags(int64_t slot) const { return flags_[slot]; }
+    // Whether the slot holds anything worth keeping: loaded or marked data (kHasData), or an
+    // optimiser update (a step count). The training step sets no flag, so that its pass over
+    // the touched rows does not write one more random line per row.
+    bool has_data(int64_t slot) const { return (flags_[slot] & kHasData) || steps_[slot] != 0; }
     ScatterTag& scatter_tag(int64_t slot) { return tags_[slot]; }
     const ScatterTag& scatter_tag(int64_t slot) const { return tags_[slot]; }
     // Copies for tests and tools: every slot's features (slots × D) or flags, dense.

@@ -46,7 +46,7 @@ void SerializeLocalMap(const LocalMap& map, ByteWriter* w) {
     std::vector<int32_t> steps;
     std::vector<uint8_t> flags;
     for (int64_t s = 0; s < lv.slots(); ++s) {
-      if (!(lv.flags(s) & LocalMap::kHasData)) continue;
+      if (!lv.has_data(s)) continue;
       slots.push_back(s);
       f.insert(f.end(), lv.features(s), lv.features(s) + D);
       m.insert(m.end(), lv.adam_m(s), lv.adam_m(s) + D);

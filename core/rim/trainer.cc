@@ -132,14 +132,13 @@ void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
   const int D = lv->feature_dim();
   for (size_t r = begin; r < end; ++r) {
     // Rows are scattered over the dense grid: start loading a later row's features, moments,
-    // step count and flags now, so that the misses overlap instead of queueing one after
+    // and step count now, so that the misses overlap instead of queueing one after
     // another.
     if (r + kPrefetchRows < end) {
       const int64_t ahead = g.touched[r + kPrefetchRows];
       __builtin_prefetch(lv->features(ahead), 1);
       __builtin_prefetch(lv->adam_m(ahead), 1);
       __builtin_prefetch(&lv->adam_steps(ahead), 1);
-      __builtin_prefetch(&lv->flags(ahead), 1);
     }
     const int64_t slot = g.touched[r];
     float step_size, inv_sqrt_bc2;
@@ -151,7 +150,6 @@ void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
       AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[r * D], lv->features(slot),
                     lv->adam_m(slot), lv->adam_v(slot));
     }
-    lv->flags(slot) |= LocalMap::kHasData;
   }
 }
 

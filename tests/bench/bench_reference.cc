@@ -57,7 +57,6 @@ void BM_AdamFeaturesSlotOrder(benchmark::State& state) {
         f.bias().Get(++lv.adam_steps(slot), &step_size, &inv_sqrt_bc2);
         AdamUpdateRow(hyper, step_size, inv_sqrt_bc2, D, &g.grad[size_t(r) * D], lv.features(slot),
                       lv.adam_m(slot), lv.adam_v(slot));
-        lv.flags(slot) |= LocalMap::kHasData;
       }
     }
   }

@@ -153,8 +153,8 @@ class SlidingHarness {
             if (std::memcmp(f, want, sizeof(float) * D) != 0) fail("features differ", l, g);
             if (bool(lv.flags(slot) & LocalMap::kObserved) != want_observed)
               fail("observed flag differs", l, g);
-            if (it != ref_.end() && !(lv.flags(slot) & LocalMap::kHasData))
-              fail("kHasData missing on a voxel with data", l, g);
+            if (it != ref_.end() && !lv.has_data(slot))
+              fail("has_data false on a voxel with data", l, g);
             auto at = adam_.find(KeyOf(l, g));
             const float* want_m = at == adam_.end() ? zeros.data() : at->second.m.data();
             const float* want_v = at == adam_.end() ? zeros.data() : at->second.v.data();
