@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <random>
 #include <string>
 #include <utility>
@@ -41,6 +42,32 @@ float MaxRelDiff(const std::vector<float>& a, const std::vector<float>& b) {
   return diff / scale;
 }
 
+// A batch of random features in [−range, range] and labels in [−0.4, 0.4] m; rows after the
+// labelled ones are eikonal probes. `in` points into the vectors, so a batch is never copied.
+struct Batch {
+  std::vector<float> features, labels;
+  TrainStepInput in;
+};
+std::unique_ptr<Batch> RandomBatch(int rows, int labelled, int inputs, float range, uint32_t seed,
+                                   float eikonal_weight, bool train_decoder) {
+  auto b = std::make_unique<Batch>();
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> feature(-range, range), label(-0.4f, 0.4f);
+  b->features.resize(size_t(rows) * inputs);
+  b->labels.resize(size_t(labelled));
+  for (float& f : b->features) f = feature(rng);
+  for (float& l : b->labels) l = label(rng);
+  b->in.features = b->features.data();
+  b->in.rows = rows;
+  b->in.labelled = labelled;
+  b->in.labels = b->labels.data();
+  b->in.sigma_m = 0.05f;
+  b->in.eikonal_weight = eikonal_weight;
+  b->in.eikonal_step_m = 0.05f;
+  b->in.train_decoder = train_decoder;
+  return b;
+}
+
 TEST_P(MlpStepTest, MatchesLibtorchAutograd) {
   const Case c = GetParam();
   DecoderConfig dc;
@@ -50,21 +77,9 @@ TEST_P(MlpStepTest, MatchesLibtorchAutograd) {
   Decoder decoder(kInput, dc);
   const int labelled = 5000, groups = 400;     // several chunks of MlpTrainStep::kChunkRows
   const int rows = labelled + 6 * groups + 5;  // 5 rows that form no full probe group
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> feature(-0.5f, 0.5f), label(-0.4f, 0.4f);
-  std::vector<float> features(size_t(rows) * kInput), labels(labelled);
-  for (float& f : features) f = feature(rng);
-  for (float& l : labels) l = label(rng);
-
-  TrainStepInput in;
-  in.features = features.data();
-  in.rows = rows;
-  in.labelled = labelled;
-  in.labels = labels.data();
-  in.sigma_m = 0.05f;
-  in.eikonal_weight = c.eikonal_weight;
-  in.eikonal_step_m = 0.05f;
-  in.train_decoder = c.train_decoder;
+  const auto batch =
+      RandomBatch(rows, labelled, kInput, 0.5f, 3, c.eikonal_weight, c.train_decoder);
+  const TrainStepInput& in = batch->in;
   auto ref = RunTrainStep(decoder, in);
   ASSERT_TRUE(ref.ok()) << ref.status();
   // Both forms of the fast step: the AVX2/FMA kernels (where this CPU has them; the one-hidden-
@@ -115,21 +130,8 @@ TEST(MlpStepKernelTest, VectorKernelsMatchTheEigenProducts) {
       dc.hidden_width = width;
       dc.seed = 5;
       Decoder decoder(inputs, dc);
-      const int rows = 3000, labelled = 2400;
-      std::mt19937 rng(8);
-      std::uniform_real_distribution<float> feature(-1.f, 1.f), label(-0.4f, 0.4f);
-      std::vector<float> features(size_t(rows) * inputs), labels(labelled);
-      for (float& f : features) f = feature(rng);
-      for (float& l : labels) l = label(rng);
-      TrainStepInput in;
-      in.features = features.data();
-      in.rows = rows;
-      in.labelled = labelled;
-      in.labels = labels.data();
-      in.sigma_m = 0.05f;
-      in.eikonal_weight = 0.1f;
-      in.eikonal_step_m = 0.05f;
-      in.train_decoder = train;
+      const auto batch = RandomBatch(3000, 2400, inputs, 1.f, 8, 0.1f, train);
+      const TrainStepInput& in = batch->in;
       MlpTrainStep kernels, eigen;
       eigen.set_vector_kernels(false);
       TrainStepOutput a, b;
