@@ -159,40 +159,33 @@ void Trainer::UpdateFeatures(const float* grad_features) {
   const int L = map_->geometry().levels();
   const int chunks = pool_.threads();
   // One region, three kinds of task, numbered in the order the pool hands them out:
-  //   [0, L)                    scatter of level l (its rows and sums need no other level);
-  //   [L, L + chunks)           lazy Adam on a chunk of level 0's touched rows, once level 0 is
-  //                             scattered (rows are distinct slots: chunks never share one);
-  //   L + chunks                observed marking, once every Adam chunk of level 0 is done
-  //                             (both set bits in level 0's flag bytes);
-  //   then                      the Adam chunks of levels 1 … L − 1, likewise.
+  //   [0, L)              scatter of level l (its rows and sums need no other level);
+  //   L                   observed marking (level 0's flag bytes, which nothing else here
+  //                       writes: the Adam pass keeps step counts, not flags);
+  //   [L + 1, …)          lazy Adam on a chunk of level l's touched rows, once level l is
+  //                       scattered (rows are distinct slots: chunks never share one).
   // A task only ever waits for tasks with smaller numbers, which some thread has already taken,
   // so the waits end; with one thread nothing waits. Without barriers between the stages, the
   // levels' unequal scatters and Adam passes do not leave a thread idle.
-  std::vector<std::atomic<int>>& scattered = stage_flags_;  // per level, then level 0's Adam
-  if (int(scattered.size()) != L + 1) scattered = std::vector<std::atomic<int>>(L + 1);
+  std::vector<std::atomic<int>>& scattered = stage_flags_;  // per level
+  if (int(scattered.size()) != L) scattered = std::vector<std::atomic<int>>(L);
   for (auto& f : scattered) f.store(0, std::memory_order_relaxed);
-  std::atomic<int>& level0_done = scattered[L];
-  auto wait_for = [](const std::atomic<int>& v, int value) {
-    while (v.load(std::memory_order_acquire) < value) CpuRelax();
-  };
-  const int mark_task = L + chunks;
-  pool_.Run(L + L * chunks + 1, [&](int task) {
+  const int mark_task = L;
+  pool_.Run(L + 1 + L * chunks, [&](int task) {
     if (task < L) {
       grad_.ScatterLevel(map_, encoding_, grad_features, task);
       scattered[task].store(1, std::memory_order_release);
     } else if (task != mark_task) {
-      const int adam = task < mark_task ? task - L : task - L - 1;
+      const int adam = task - L - 1;
       const int l = adam / chunks, c = adam % chunks;
-      wait_for(scattered[l], 1);
+      while (scattered[l].load(std::memory_order_acquire) == 0) CpuRelax();
       SparseGradient::Level& g = grad_.level(l);
       // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
       const size_t n = g.touched.size();
       const size_t begin = n * size_t(c) / size_t(chunks);
       const size_t end = n * size_t(c + 1) / size_t(chunks);
       UpdateTouchedRows(hyper, bias_, g, begin, end, &map_->level(l));
-      if (l == 0) level0_done.fetch_add(1, std::memory_order_release);
     } else {
-      wait_for(level0_done, chunks);
       MarkObserved();
     }
   });

@@ -62,7 +62,7 @@ class Trainer {
   TrainStepOutput step_out_;
   SparseGradient grad_;
   AdamBiasTable bias_;
-  std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: levels scattered, level 0 done
+  std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: which levels are scattered
   bool grad_ready_ = false;
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };
