@@ -9,19 +9,22 @@
 
 #include "rim/local_map.h"
 #include "rim/types.h"
+#include "rim/worker_pool.h"
 
 namespace rim {
 
 // Marks kSeenFree on the finest voxels of the local map crossed by rays origin -> point, stopping
 // `band_m` short of the endpoint (the surface band, which training marks kObserved). Uses at most
 // `max_rays` rays, evenly strided through the scan, so the cost per frame is bounded whatever the
-// scan size; 0 marks nothing. Only the part of each ray inside the box is walked.
+// scan size; 0 marks nothing. Only the part of each ray inside the box is walked. With a pool,
+// the rays are shared among its threads; the marks are the same either way.
 void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
-                   float band_m, int max_rays, LocalMap* map);
+                   float band_m, int max_rays, LocalMap* map, WorkerPool* pool = nullptr);
 
 // Marks kObserved on the finest voxel of every endpoint inside the box: the sensor measured a
 // surface there, so queries report it observed and meshing visits it, whether or not a training
-// sample has landed in it yet.
-void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map);
+// sample has landed in it yet. With a pool, the points are shared among its threads.
+void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map,
+                       WorkerPool* pool = nullptr);
 
 }  // namespace rim

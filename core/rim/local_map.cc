@@ -90,73 +90,81 @@ uint32_t LocalMap::NextScatterStamp() {
   return scatter_stamp_;
 }
 
-namespace {
-// Slot() for a walk over lattice points that mostly steps +1 in z (how slabs are visited): the
-// next slot from the last one, without the three integer divisions of the modulo map, which
-// made up most of a move's time.
-class SlotWalker {
- public:
-  SlotWalker(const LocalMap& map, int l) : map_(map), l_(l), dz_(map.level(l).dims.z()) {}
-  int64_t operator()(const Int3& g) {
-    if (slot_ >= 0 && g.z() == last_.z() + 1 && g.x() == last_.x() && g.y() == last_.y()) {
-      ++slot_;
-      if (++zmod_ == dz_) {
-        zmod_ = 0;
-        slot_ -= dz_;
-      }
-    } else {
-      slot_ = map_.Slot(l_, g);
-      zmod_ = PosMod(g.z(), dz_);
-    }
-    last_ = g;
-    return slot_;
-  }
-
- private:
-  const LocalMap& map_;
-  const int l_, dz_;
-  Int3 last_ = Int3::Zero();
-  int64_t slot_ = -1;
-  int zmod_ = 0;
-};
-}  // namespace
-
 void LocalMap::MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadFn& load) {
+  LoadRunFn load_run;
+  if (load) {
+    const int D = geometry_.feature_dim();
+    load_run = [&load, D](int l, const Int3& g, int n, float* features, uint8_t* flags) {
+      for (int i = 0; i < n; ++i) {
+        uint8_t observed = 0;
+        if (load(l, Int3(g.x(), g.y(), g.z() + i), features + size_t(i) * D, &observed))
+          flags[i] = kHasData | (observed & kObservedBits);
+      }
+    };
+  }
+  MoveToLoadingRuns(coarse_origin, save, load_run);
+}
+
+void LocalMap::MoveToLoadingRuns(const Int3& coarse_origin, const SaveFn& save,
+                                 const LoadRunFn& load) {
   if (placed_ && coarse_origin == coarse_origin_) return;
   const int D = geometry_.feature_dim();
   for (int l = 0; l < geometry_.levels(); ++l) {
     Level& lv = levels_[l];
-    SlotWalker slot_of(*this, l);
+    const int dz = lv.dims.z();
+    // Calls fn(slot, z, len) for the pieces of a z run whose slots are consecutive: the run
+    // breaks only where the ring wraps along z.
+    auto for_each_piece = [&](const Int3& g, int n, auto&& fn) {
+      for (int z = g.z(), end = g.z() + n; z < end;) {
+        const int len = std::min(end - z, dz - PosMod(z, dz));
+        fn(Slot(l, Int3(g.x(), g.y(), z)), z, len);
+        z += len;
+      }
+    };
     const IntBox old_box = LatticeBox(l);
     const IntBox new_box{geometry_.LevelOrigin(coarse_origin, l),
                          geometry_.LevelOrigin(coarse_origin, l) + geometry_.cells(l)};
     if (placed_) {
       SlabBatch batch;
       batch.level = l;
-      ForEachInDifference(old_box, new_box, [&](const Int3& g) {
-        const int64_t slot = slot_of(g);
-        if (!lv.has_data(slot)) return;
-        batch.points.push_back(g);
-        batch.features.insert(batch.features.end(), lv.features(slot), lv.features(slot) + D);
-        if (l == 0) batch.observed.push_back(lv.flags(slot) & kObservedBits);
-        ResetSlot(l, slot);
+      // Count first: the batch is sized once instead of growing (and copying) as it fills.
+      size_t leaving = 0;
+      ForEachRunInDifference(old_box, new_box, [&](const Int3& g, int n) {
+        for_each_piece(g, n, [&](int64_t slot, int, int len) {
+          for (int k = 0; k < len; ++k) leaving += lv.has_data(slot + k);
+        });
+      });
+      batch.points.reserve(leaving);
+      batch.features.resize(leaving * D);
+      if (l == 0) batch.observed.reserve(leaving);
+      float* out = batch.features.data();
+      ForEachRunInDifference(old_box, new_box, [&](const Int3& g, int n) {
+        for_each_piece(g, n, [&](int64_t slot0, int z0, int len) {
+          for (int k = 0; k < len; ++k) {
+            const int64_t slot = slot0 + k;
+            if (!lv.has_data(slot)) continue;
+            batch.points.emplace_back(g.x(), g.y(), z0 + k);
+            out = std::copy_n(lv.features(slot), D, out);
+            if (l == 0) batch.observed.push_back(lv.flags(slot) & kObservedBits);
+            ResetSlot(l, slot);
+          }
+        });
       });
       if (!batch.points.empty() && save) save(std::move(batch));
     }
     lv.origin = new_box.lo;
-    auto fill = [&](const Int3& g) {
-      const int64_t slot = slot_of(g);
-      uint8_t observed = 0;
-      if (load && load(l, g, lv.features(slot), &observed)) {
-        lv.flags(slot) = kHasData | (observed & kObservedBits);
-      }
+    if (!load) continue;
+    auto fill = [&](const Int3& g, int n) {
+      for_each_piece(g, n, [&](int64_t slot, int z, int len) {
+        load(l, Int3(g.x(), g.y(), z), len, lv.features(slot), &lv.flags(slot));
+      });
     };
     if (placed_) {
-      ForEachInDifference(new_box, old_box, fill);
+      ForEachRunInDifference(new_box, old_box, fill);
     } else {
       for (int x = new_box.lo.x(); x <= new_box.hi.x(); ++x)
         for (int y = new_box.lo.y(); y <= new_box.hi.y(); ++y)
-          for (int z = new_box.lo.z(); z <= new_box.hi.z(); ++z) fill(Int3(x, y, z));
+          fill(Int3(x, y, new_box.lo.z()), new_box.hi.z() - new_box.lo.z() + 1);
     }
   }
   coarse_origin_ = coarse_origin;

@@ -116,6 +116,11 @@ class LocalMap {
 
   // Loads a voxel's data from the global map; returns false when nothing is known there.
   using LoadFn = std::function<bool(int level, const Int3& g, float* features, uint8_t* observed)>;
+  // Loads a run of n voxels g, g + ẑ, ..., g + (n − 1)·ẑ of a level, whose storage is contiguous:
+  // for voxel i that the global map knows, writes its D features to features + i·D and sets
+  // flags[i] = kHasData | its observed bits; leaves the others as they are.
+  using LoadRunFn =
+      std::function<void(int level, const Int3& g, int n, float* features, uint8_t* flags)>;
   using SaveFn = std::function<void(SlabBatch&&)>;
 
   explicit LocalMap(const MapGeometry& geometry);
@@ -166,6 +171,9 @@ class LocalMap {
   // `save` and their storage is reset, Adam moments included; voxels entering are filled by
   // `load`, or left zero. The first call places the box and loads all of it.
   void MoveTo(const Int3& coarse_origin, const SaveFn& save, const LoadFn& load);
+  // The same, loading entering voxels a z run at a time: a loader that handles a run costs one
+  // call per run instead of one per voxel (the mapper's slide).
+  void MoveToLoadingRuns(const Int3& coarse_origin, const SaveFn& save, const LoadRunFn& load);
 
   // Sets the box position without any slab exchange; used when restoring a saved map whose
   // storage is filled separately.

@@ -80,23 +80,34 @@ struct IntBox {
   }
 };
 
-// Calls fn(g) for every point of `a` that is not in `b`: the slabs that leave (or enter) when a
-// box moves. Visits only the difference, never the whole box.
+// Calls fn(start, n) for runs along z that together cover every point of `a` not in `b`, once
+// each: points start, start + ẑ, ..., start + (n − 1)·ẑ, n ≥ 1. These are the slabs that leave
+// (or enter) when a box moves; only the difference is visited, never the whole box.
 template <typename Fn>
-void ForEachInDifference(const IntBox& a, const IntBox& b, Fn&& fn) {
+void ForEachRunInDifference(const IntBox& a, const IntBox& b, Fn&& fn) {
   for (int x = a.lo.x(); x <= a.hi.x(); ++x) {
     const bool x_in = x >= b.lo.x() && x <= b.hi.x();
     for (int y = a.lo.y(); y <= a.hi.y(); ++y) {
       const bool y_in = y >= b.lo.y() && y <= b.hi.y();
       if (x_in && y_in) {
         // Only z slabs can differ here.
-        for (int z = a.lo.z(); z <= std::min(a.hi.z(), b.lo.z() - 1); ++z) fn(Int3(x, y, z));
-        for (int z = std::max(a.lo.z(), b.hi.z() + 1); z <= a.hi.z(); ++z) fn(Int3(x, y, z));
-      } else {
-        for (int z = a.lo.z(); z <= a.hi.z(); ++z) fn(Int3(x, y, z));
+        const int below_end = std::min(a.hi.z(), b.lo.z() - 1);
+        if (below_end >= a.lo.z()) fn(Int3(x, y, a.lo.z()), below_end - a.lo.z() + 1);
+        const int above_start = std::max(a.lo.z(), b.hi.z() + 1);
+        if (above_start <= a.hi.z()) fn(Int3(x, y, above_start), a.hi.z() - above_start + 1);
+      } else if (a.hi.z() >= a.lo.z()) {
+        fn(Int3(x, y, a.lo.z()), a.hi.z() - a.lo.z() + 1);
       }
     }
   }
+}
+
+// Calls fn(g) for every point of `a` that is not in `b`, run by run (ForEachRunInDifference).
+template <typename Fn>
+void ForEachInDifference(const IntBox& a, const IntBox& b, Fn&& fn) {
+  ForEachRunInDifference(a, b, [&fn](const Int3& start, int n) {
+    for (int i = 0; i < n; ++i) fn(Int3(start.x(), start.y(), start.z() + i));
+  });
 }
 
 }  // namespace rim

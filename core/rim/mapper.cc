@@ -89,10 +89,10 @@ void Mapper::SlideTo(const Vec3d& position_W) {
   // earlier writes so that a slab that left and comes back is read as it was saved.
   saver_->Flush();
   SubmapStore::CachedReader reader(*store_);  // entering voxels come in runs along z
-  local_map_->MoveTo(
+  local_map_->MoveToLoadingRuns(
       origin, [this](SlabBatch&& b) { saver_->Submit(std::move(b)); },
-      [&reader](int l, const Int3& g, float* f, uint8_t* obs) {
-        return reader.Read(l, g, f, obs);
+      [&reader](int l, const Int3& g, int n, float* f, uint8_t* flags) {
+        reader.ReadRun(l, g, n, f, flags);
       });
 }
 
@@ -118,12 +118,14 @@ void Mapper::Preprocess(const PosedScan& scan) {
       outside.origins_W.push_back(o_W);
     }
   }
-  MarkSurfaceVoxels(inside_p, local_map_.get());
+  // On the training threads, idle until the first iteration.
+  WorkerPool* pool = &trainer_->pool();
+  MarkSurfaceVoxels(inside_p, local_map_.get(), pool);
   MarkFreeSpace(inside_p, inside_o, config_.sampler.observed_band_m,
-                config_.sampler.free_space_rays, local_map_.get());
+                config_.sampler.free_space_rays, local_map_.get(), pool);
   // Rays ending outside the box crossed it as free space up to the box face.
   MarkFreeSpace(outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
-                config_.sampler.free_space_rays / 4, local_map_.get());
+                config_.sampler.free_space_rays / 4, local_map_.get(), pool);
   buffer_->AddFrame(inside_p, inside_o);
   buffer_->RemoveOutside(lo, hi);
   // Outlier removal needs a decoder that already means something: not before it is frozen.

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -147,6 +148,23 @@ std::shared_ptr<const SubmapStore::Block> SubmapStore::ReadBlock(int level, cons
   return it->second;
 }
 
+void SubmapStore::CachedReader::Visit(int level, const Int3& g, const Int3& origin) {
+  if (valid_[level] && origin_[level] == origin) return;
+  // Direct-mapped by a hash of the block: the blocks of one column differ in z and land in
+  // different entries.
+  const uint32_t h = uint32_t(origin.x()) * 73856093u ^ uint32_t(origin.y()) * 19349663u ^
+                     uint32_t(origin.z()) * 83492791u;
+  Cached* slot = &cache_[level][(h >> 7) % kCachedBlocks];
+  if (!slot->valid || slot->origin != origin) {
+    slot->block = store_.ReadBlock(level, g);
+    slot->origin = origin;
+    slot->valid = true;
+  }
+  block_[level] = slot->block.get();
+  origin_[level] = origin;
+  valid_[level] = true;
+}
+
 bool SubmapStore::CachedReader::Read(int level, const Int3& g, float* features, uint8_t* observed) {
   const Int3& last = last_[level];
   if (valid_[level] && g.z() == last.z() + 1 && g.x() == last.x() && g.y() == last.y() &&
@@ -154,23 +172,59 @@ bool SubmapStore::CachedReader::Read(int level, const Int3& g, float* features, 
     ++index_[level];
   } else {
     const BlockAddress a = store_.Address(level, g);
-    if (!valid_[level] || origin_[level] != a.origin) {
-      block_[level] = store_.ReadBlock(level, g);
-      origin_[level] = a.origin;
-      valid_[level] = true;
-    }
+    Visit(level, g, a.origin);
     index_[level] = a.index;
     const int cells_z = store_.geometry_.cells(level).z();
     const int submap_end_z = (store_.geometry_.SubmapOfLattice(level, g).z() + 1) * cells_z;
     z_end_[level] = std::min(a.origin.z() + store_.config_.block_size, submap_end_z);
   }
   last_[level] = g;
-  const Block* b = block_[level].get();
+  const Block* b = block_[level];
   if (b == nullptr) return false;
   const size_t D = size_t(store_.geometry_.feature_dim()), index = size_t(index_[level]);
   HalvesToFloats(&b->features[index * D], D, features);
   if (observed) *observed = level == 0 ? b->observed[index] : 0;
   return true;
+}
+
+void SubmapStore::CachedReader::ReadRun(int level, const Int3& g, int n, float* features,
+                                        uint8_t* flags) {
+  const size_t D = size_t(store_.geometry_.feature_dim());
+  const int B = store_.config_.block_size;
+  const Int3& cells = store_.geometry_.cells(level);
+  // x and y of the address are the run's; z is stepped from block to block, and from sub-map to
+  // sub-map where a border cuts a block short, without dividing again.
+  int sub_origin[3], block[3], in[3];
+  for (int a = 0; a < 3; ++a) {
+    sub_origin[a] = FloorDiv(g[a], cells[a]) * cells[a];
+    block[a] = (g[a] - sub_origin[a]) / B;  // non-negative
+    in[a] = g[a] - sub_origin[a] - block[a] * B;
+  }
+  const int xy_index = (in[0] * B + in[1]) * B;
+  for (int i = 0; i < n;) {
+    const int z = g.z() + i;
+    const int block_z0 = sub_origin[2] + block[2] * B;
+    const int z_end = std::min(block_z0 + B, sub_origin[2] + cells.z());
+    const int len = std::min(n - i, z_end - z);
+    Visit(level, Int3(g.x(), g.y(), z),
+          Int3(sub_origin[0] + block[0] * B, sub_origin[1] + block[1] * B, block_z0));
+    if (const Block* b = block_[level]) {
+      const size_t index = size_t(xy_index + z - block_z0);
+      HalvesToFloats(&b->features[index * D], size_t(len) * D, features + size_t(i) * D);
+      for (int k = 0; k < len; ++k)
+        flags[i + k] = LocalMap::kHasData |
+                       (level == 0 ? b->observed[index + k] & LocalMap::kObservedBits : 0);
+    }
+    i += len;
+    if (z_end == sub_origin[2] + cells.z()) {
+      sub_origin[2] += cells.z();
+      block[2] = 0;
+    } else {
+      ++block[2];
+    }
+  }
+  // Read's next-z shortcut refers to the voxel it read last, not to this run's block.
+  z_end_[level] = std::numeric_limits<int>::min();
 }
 
 std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {

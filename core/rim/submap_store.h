@@ -62,19 +62,37 @@ class SubmapStore {
   std::shared_ptr<const Block> ReadBlock(int level, const Int3& g) const;
 
   // Read for a caller that visits many neighbouring voxels (a slab entering the local map): it
-  // keeps the last block it visited per level, absent ones included, so a run of voxels in one
-  // block costs one lock and one lookup. What it returns is the block as it was when first
-  // visited (ReadBlock's snapshot). One reader per thread.
+  // keeps up to kCachedBlocks blocks it visited per level, absent ones included, so the blocks
+  // of a column of z runs, visited again by the runs of the next columns, cost one lock and one
+  // lookup each. What it returns is a block as it was when first visited (ReadBlock's
+  // snapshot). One reader per thread.
   class CachedReader {
    public:
     explicit CachedReader(const SubmapStore& store) : store_(store) {}
     bool Read(int level, const Int3& g, float* features, uint8_t* observed);
+    // A run along z, as LocalMap::LoadRunFn asks: every voxel of a block the store holds gets
+    // its features and flags = kHasData | its observed bits; voxels of absent blocks are left
+    // as they are. One address computation, and one lookup if the block changes, per block the
+    // run crosses, and the features of a block's piece of the run widened in one call.
+    void ReadRun(int level, const Int3& g, int n, float* features, uint8_t* flags);
 
    private:
+    // Twice the blocks a z run of the local map crosses for every preset (its height over the
+    // block size, 8).
+    static constexpr int kCachedBlocks = 16;
+    struct Cached {
+      bool valid = false;
+      Int3 origin;
+      std::shared_ptr<const Block> block;
+    };
+    // The cached block holding g (looked up or read), made the current one of its level.
+    void Visit(int level, const Int3& g, const Int3& origin);
+
     const SubmapStore& store_;
+    Cached cache_[kMaxLevels][kCachedBlocks];
     bool valid_[kMaxLevels] = {};
     Int3 origin_[kMaxLevels];
-    std::shared_ptr<const Block> block_[kMaxLevels];
+    const Block* block_[kMaxLevels] = {};
     // The last point read per level, its index in the block and the end (exclusive) of the
     // block's z range, which a sub-map border may cut short: the next z before that end is the
     // next index, with no address arithmetic (divisions).

@@ -41,6 +41,8 @@ class Trainer {
                                   IterationTiming* timing);
 
   Sampler& sampler() { return sampler_; }
+  // The training threads, for other work of the mapper's between iterations (never during one).
+  WorkerPool& pool() { return pool_; }
   const SampleBatch& last_batch() const { return batch_; }
 
  private:

@@ -3,6 +3,7 @@
 #include "rim/free_space.h"
 
 #include <cmath>
+#include <random>
 #include <set>
 #include <tuple>
 #include <vector>
@@ -89,6 +90,29 @@ TEST_F(FreeSpaceTest, RayBudgetBoundsTheWork) {
   const int ten = CountSeenFree();
   EXPECT_GT(ten, 0);
   EXPECT_LE(ten, 10 * 38);
+}
+
+TEST_F(FreeSpaceTest, MarksTheSameWithAPool) {
+  // Many rays in every direction, crossing each other: the threads of a pool share voxels.
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> in(0.05f, 3.95f), in_z(0.05f, 2.35f), out(-3.f, 7.f);
+  std::vector<Vec3f> points, origins;
+  for (int i = 0; i < 3000; ++i) {
+    origins.push_back(Vec3f(in(rng), in(rng), in_z(rng)));
+    points.push_back(i % 3 ? Vec3f(in(rng), in(rng), in_z(rng)) : Vec3f(out(rng), out(rng), 1.f));
+  }
+  MarkSurfaceVoxels(points, &map_);
+  MarkFreeSpace(points, origins, 0.15f, 2000, &map_);
+  const std::vector<uint8_t> alone = map_.level(0).FlagCopy();
+  for (const int threads : {2, 3}) {
+    LocalMap pooled(geometry_);
+    pooled.MoveTo(Int3::Zero(), nullptr, nullptr);
+    WorkerPool pool(threads);
+    MarkSurfaceVoxels(points, &pooled, &pool);
+    MarkFreeSpace(points, origins, 0.15f, 2000, &pooled, &pool);
+    EXPECT_EQ(pooled.level(0).FlagCopy(), alone) << threads << " threads";
+  }
+  EXPECT_GT(CountSeenFree(), 2000);
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <tuple>
 #include <unordered_map>
 #include <vector>
 
@@ -55,8 +56,11 @@ struct RefAdam {
 // Drives a LocalMap through random moves and random writes, mirroring everything in a reference.
 class SlidingHarness {
  public:
-  SlidingHarness(bool background, uint64_t seed)
-      : config_(SmallConfig()),
+  // run_loads: entering voxels are loaded a z run at a time through a CachedReader, as the
+  // mapper does; otherwise one voxel at a time through SubmapStore::Read.
+  SlidingHarness(bool background, uint64_t seed, bool run_loads = false)
+      : run_loads_(run_loads),
+        config_(SmallConfig()),
         geometry_(config_.grid),
         map_(geometry_),
         store_(geometry_, config_.submap),
@@ -72,9 +76,18 @@ class SlidingHarness {
   void MoveTo(const Int3& origin) {
     // As the mapper does: the store must be current before entering slabs are loaded from it.
     saver_.Flush();
-    map_.MoveTo(
-        origin, [this](SlabBatch&& b) { saver_.Submit(std::move(b)); },
-        [this](int l, const Int3& g, float* f, uint8_t* obs) { return store_.Read(l, g, f, obs); });
+    auto save = [this](SlabBatch&& b) { saver_.Submit(std::move(b)); };
+    if (run_loads_) {
+      SubmapStore::CachedReader reader(store_);
+      map_.MoveToLoadingRuns(origin, save,
+                             [&reader](int l, const Int3& g, int n, float* f, uint8_t* flags) {
+                               reader.ReadRun(l, g, n, f, flags);
+                             });
+    } else {
+      map_.MoveTo(origin, save, [this](int l, const Int3& g, float* f, uint8_t* obs) {
+        return store_.Read(l, g, f, obs);
+      });
+    }
     // Optimiser state is not part of the global map: voxels that left lose it.
     for (auto it = adam_.begin(); it != adam_.end();) {
       const VoxelKey& k = it->first;
@@ -172,6 +185,7 @@ class SlidingHarness {
   std::mt19937_64& rng() { return rng_; }
 
  private:
+  const bool run_loads_;
   MapperConfig config_;
   MapGeometry geometry_;
   LocalMap map_;
@@ -196,10 +210,13 @@ StoragePointers Capture(const LocalMap& map) {
   return s;
 }
 
-class LocalMapSlidingTest : public ::testing::TestWithParam<bool> {};
+// Parameters: whether slabs are saved on the background thread, and whether entering voxels are
+// loaded by z runs (the mapper's path) or one at a time.
+class LocalMapSlidingTest : public ::testing::TestWithParam<std::tuple<bool, bool>> {};
 
 TEST_P(LocalMapSlidingTest, RandomMovesMatchGlobalReference) {
-  SlidingHarness h(/*background=*/GetParam(), /*seed=*/1234);
+  SlidingHarness h(/*background=*/std::get<0>(GetParam()), /*seed=*/1234,
+                   /*run_loads=*/std::get<1>(GetParam()));
   const MapGeometry& geo = h.geometry();
   ASSERT_EQ(geo.cells(0), Int3(40, 40, 24));
   const Int3 coarse = geo.cells(geo.levels() - 1);
@@ -273,10 +290,12 @@ TEST_P(LocalMapSlidingTest, RandomMovesMatchGlobalReference) {
   EXPECT_GT(h.reference().size(), 5000u);
 }
 
-INSTANTIATE_TEST_SUITE_P(SaveModes, LocalMapSlidingTest, ::testing::Values(false, true),
-                         [](const ::testing::TestParamInfo<bool>& info) {
-                           return info.param ? std::string("BackgroundSaver")
-                                             : std::string("Synchronous");
+INSTANTIATE_TEST_SUITE_P(SaveModes, LocalMapSlidingTest,
+                         ::testing::Combine(::testing::Bool(), ::testing::Bool()),
+                         [](const ::testing::TestParamInfo<std::tuple<bool, bool>>& info) {
+                           return std::string(std::get<0>(info.param) ? "BackgroundSaver"
+                                                                      : "Synchronous") +
+                                  (std::get<1>(info.param) ? "RunLoads" : "VoxelLoads");
                          });
 
 TEST(LocalMapTest, MoveToSameOriginIsNoOp) {

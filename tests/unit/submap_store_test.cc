@@ -276,6 +276,62 @@ TEST_F(SubmapStoreTest, CachedReaderReadsWhatReadReads) {
   }
 }
 
+TEST_F(SubmapStoreTest, CachedReaderRunsReadWhatReadReads) {
+  SubmapStore store(geometry_, config_.submap);
+  Reference ref;
+  Fill(&store, &ref);
+  const int D = geometry_.feature_dim();
+  std::mt19937_64 rng(5);
+  SubmapStore::CachedReader reader(store);
+  int64_t found = 0, absent = 0;
+  for (int l = 0; l < geometry_.levels(); ++l) {
+    const Int3 c = geometry_.cells(l);
+    std::uniform_int_distribution<int> xy(-c.x() / 2, c.x() / 2), z(-c.z(), 2 * c.z());
+    std::uniform_int_distribution<int> length(1, 2 * c.z());
+    // Runs of every length from every start: across block and sub-map borders, in stored and
+    // absent blocks, with single reads mixed in (the reader's two paths share its cache).
+    for (int i = 0; i < 400; ++i) {
+      const Int3 g(xy(rng), xy(rng), z(rng));
+      const int n = length(rng);
+      std::vector<float> got(size_t(n) * D, -9.f);
+      std::vector<uint8_t> flags(n, 0xee);
+      reader.ReadRun(l, g, n, got.data(), flags.data());
+      for (int k = 0; k < n; ++k) {
+        const Int3 p(g.x(), g.y(), g.z() + k);
+        std::vector<float> want(D, -9.f);
+        uint8_t obs = 0;
+        const bool ok = store.Read(l, p, want.data(), &obs);
+        const std::vector<float> run_f(got.begin() + size_t(k) * D,
+                                       got.begin() + size_t(k + 1) * D);
+        if (ok) {
+          ASSERT_EQ(flags[k], LocalMap::kHasData | (obs & LocalMap::kObservedBits))
+              << "level " << l << " " << p.transpose();
+          ASSERT_EQ(run_f, want) << "level " << l << " " << p.transpose();
+          ++found;
+        } else {
+          ASSERT_EQ(flags[k], 0xee) << "untouched where nothing is stored: " << p.transpose();
+          ASSERT_EQ(run_f, std::vector<float>(D, -9.f)) << p.transpose();
+          ++absent;
+        }
+      }
+      if (i % 3 == 0) {
+        std::vector<float> want(D), single(D);
+        uint8_t want_obs = 7, got_obs = 7;
+        const bool ok = store.Read(l, g, want.data(), &want_obs);
+        ASSERT_EQ(reader.Read(l, g, single.data(), &got_obs), ok);
+        if (ok) ASSERT_EQ(single, want);
+        // The next z through Read's shortcut, right after a run moved the reader elsewhere.
+        const Int3 next(g.x(), g.y(), g.z() + 1);
+        const bool next_ok = store.Read(l, next, want.data(), &want_obs);
+        ASSERT_EQ(reader.Read(l, next, single.data(), &got_obs), next_ok);
+        if (next_ok) ASSERT_EQ(single, want) << next.transpose();
+      }
+    }
+  }
+  EXPECT_GT(found, 1000) << "the runs must cover stored blocks";
+  EXPECT_GT(absent, 1000) << "and places with nothing stored";
+}
+
 TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
   SubmapStore store(geometry_, config_.submap);
   Reference ref;
