@@ -12,6 +12,7 @@
 #include "rim/config.h"
 #include "rim/point_buffer.h"
 #include "rim/types.h"
+#include "rim/worker_pool.h"
 
 namespace rim {
 
@@ -39,6 +40,32 @@ struct OutsideRays {
 float BoxExitDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_min,
                       const Vec3f& box_max);
 
+// A small, fast generator for the sampling pieces (xoshiro256**, state filled by splitmix64 from
+// the seed): a few cycles per draw against a Mersenne twister's table refills.
+class FastRng {
+ public:
+  using result_type = uint64_t;
+  explicit FastRng(uint64_t seed);
+  static constexpr result_type min() { return 0; }
+  static constexpr result_type max() { return ~result_type(0); }
+  result_type operator()() {
+    const uint64_t result = Rotl(s_[1] * 5, 7) * 9;
+    const uint64_t t = s_[1] << 17;
+    s_[2] ^= s_[0];
+    s_[3] ^= s_[1];
+    s_[1] ^= s_[2];
+    s_[0] ^= s_[3];
+    s_[2] ^= t;
+    s_[3] = Rotl(s_[3], 45);
+    return result;
+  }
+
+ private:
+  static uint64_t Rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+  static uint64_t SplitMix(uint64_t* x);
+  uint64_t s_[4];
+};
+
 class Sampler {
  public:
   Sampler(const SamplerConfig& config, float sigma_m, uint64_t seed);
@@ -48,15 +75,27 @@ class Sampler {
   // outside rays enabled, also draws outside_rays_per_iteration rays of `outside` and samples
   // Nf stratified free-space points between the sensor and the box exit, labelled with the
   // distance to the real endpoint beyond the box. Samples outside the box are dropped.
+  //
+  // The rays are drawn in kPieces fixed pieces (inside and outside rays each), each with its own
+  // generator seeded from rng(); with a pool the pieces run on its threads. The batch is the same
+  // with or without one, and for any number of threads.
   void Sample(const PointBuffer& buffer, const OutsideRays& outside, const Vec3d& box_min_m,
-              const Vec3d& box_max_m, SampleBatch* out);
+              const Vec3d& box_max_m, SampleBatch* out, WorkerPool* pool = nullptr);
 
+  // The generator every batch starts from (what a checkpoint keeps).
   std::mt19937_64& rng() { return rng_; }
 
  private:
+  static constexpr int kPieces = 8;
+  void SampleInside(const PointBuffer& buffer, const Vec3f& lo, const Vec3f& hi, int rays,
+                    FastRng* rng, SampleBatch* out) const;
+  void SampleOutside(const OutsideRays& outside, const Vec3f& lo, const Vec3f& hi, int rays,
+                     FastRng* rng, SampleBatch* out) const;
+
   SamplerConfig config_;
   float sigma_m_;
   std::mt19937_64 rng_;
+  SampleBatch parts_[2 * kPieces];  // per piece, reused from batch to batch
 };
 
 }  // namespace rim

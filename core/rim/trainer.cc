@@ -59,7 +59,7 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
     grad_ready_ = true;
   }
   const double t0 = Now();
-  sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_);
+  sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_);
   if (timing) timing->sample_s += Now() - t0;
   return TrainOnBatch(train_decoder, timing);
 }

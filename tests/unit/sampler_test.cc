@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <random>
 #include <set>
 #include <vector>
 
@@ -35,6 +36,52 @@ SamplerConfig RayConfig(int rays) {
   c.free_max_ratio = 0.9f;
   c.outside_rays = false;
   return c;
+}
+
+TEST(SamplerTest, APoolDrawsTheSameBatch) {
+  // A buffer of many rays and outside rays, some leaving the box: the pieces drop samples
+  // unevenly and the endpoints must still index the right samples.
+  PointBuffer buffer(BufferConfig{}, /*seed=*/1);
+  std::mt19937_64 rng(2);
+  std::uniform_real_distribution<float> u(-12.f, 12.f);
+  std::vector<Vec3f> points, origins;
+  for (int i = 0; i < 5000; ++i) {
+    points.push_back(Vec3f(u(rng), u(rng), u(rng) / 4));
+    origins.push_back(Vec3f(u(rng) / 6, u(rng) / 6, 0.f));
+  }
+  buffer.AddFrame(points, origins);
+  OutsideRays outside;
+  for (int i = 0; i < 500; ++i) {
+    outside.points_W.push_back(Vec3f(30.f + u(rng), u(rng), 0.f));
+    outside.origins_W.push_back(Vec3f::Zero());
+  }
+  SamplerConfig config = RayConfig(2048);
+  config.outside_rays = true;
+  config.outside_rays_per_iteration = 300;
+  const Vec3d lo(-10, -10, -3), hi(10, 10, 3);
+  SampleBatch want;
+  for (const int threads : {2, 3}) {
+    Sampler pooled(config, 0.05f, /*seed=*/8);
+    Sampler reference(config, 0.05f, /*seed=*/8);
+    WorkerPool pool(threads);
+    for (int iteration = 0; iteration < 3; ++iteration) {
+      SampleBatch got;
+      reference.Sample(buffer, outside, lo, hi, &want);
+      pooled.Sample(buffer, outside, lo, hi, &got, &pool);
+      ASSERT_GT(want.size(), 2048u * 5);
+      EXPECT_EQ(got.xyz, want.xyz) << threads << " threads, iteration " << iteration;
+      EXPECT_EQ(got.labels, want.labels);
+      EXPECT_EQ(got.endpoints, want.endpoints);
+      for (int32_t e : want.endpoints) ASSERT_EQ(want.labels[e], 0.f);
+    }
+  }
+  // Every batch advances the generator a checkpoint keeps by the same number of draws.
+  Sampler a(config, 0.05f, 8), b(config, 0.05f, 8);
+  SampleBatch batch;
+  a.Sample(buffer, outside, lo, hi, &batch);
+  WorkerPool pool(2);
+  b.Sample(buffer, outside, lo, hi, &batch, &pool);
+  EXPECT_EQ(a.rng(), b.rng());
 }
 
 TEST(SamplerTest, KnownRayAlongX) {
