@@ -101,16 +101,22 @@ void Mapper::Preprocess(const PosedScan& scan) {
   const Vec3f sensor_W = T.translation();
   const Vec3d lo = local_map_->min_m(), hi = local_map_->max_m();
   std::vector<Vec3f> inside_p, inside_o;
+  inside_p.reserve(scan.points_S.size());
+  inside_o.reserve(scan.points_S.size());
   OutsideRays& outside = outside_->rays;
   outside.points_W.clear();
   outside.origins_W.clear();
+  const bool per_point_origins = !scan.origins_S.empty();
+  const float min_range = config_.buffer.min_range_m, max_range = config_.buffer.max_range_m;
   for (size_t i = 0; i < scan.points_S.size(); ++i) {
-    const Vec3f o_S = scan.origins_S.empty() ? Vec3f::Zero() : scan.origins_S[i];
+    const Vec3f o_S = per_point_origins ? scan.origins_S[i] : Vec3f::Zero();
     const float range = (scan.points_S[i] - o_S).norm();
-    if (range < config_.buffer.min_range_m || range > config_.buffer.max_range_m) continue;
+    if (range < min_range || range > max_range) continue;
     const Vec3f p_W = T * scan.points_S[i];
-    const Vec3f o_W = scan.origins_S.empty() ? sensor_W : Vec3f(T * o_S);
-    if (local_map_->Contains(p_W.cast<double>())) {
+    const Vec3f o_W = per_point_origins ? Vec3f(T * o_S) : sensor_W;
+    // LocalMap::Contains with the box bounds computed once per scan.
+    const Vec3d q = p_W.cast<double>();
+    if ((q.array() >= lo.array()).all() && (q.array() < hi.array()).all()) {
       inside_p.push_back(p_W);
       inside_o.push_back(o_W);
     } else {
