@@ -75,6 +75,7 @@ void CheckOk(const absl::Status& status, const char* what);
 void RegisterStageBenchmarks();
 void RegisterReferenceBenchmarks();
 void RegisterFrameBenchmarks();
+void RegisterFrameStageBenchmarks();  // Stage/Slide, Stage/Preprocess (bench_frames.cc)
 void RegisterMapBenchmarks();
 void RegisterSequenceBenchmarks();
 

@@ -4,6 +4,9 @@
 // benchmark iteration is the next frame, Options().measured_frames of them. Wall time is ms per
 // frame; the counters are the mapper's own StageTimings, ms per frame.
 //
+// Stage/Slide, Stage/Preprocess: the same frames at maicity_online, each benchmark's time the
+// one stage's (manual time), so that its median and spread are reported on their own.
+//
 // Sequence/PRESET (long mode only): the whole sequence from an empty map, with resident memory
 // and sub-map bytes recorded every frame (counters every 10 frames, all frames in the CSV).
 #include <benchmark/benchmark.h>
@@ -66,6 +69,30 @@ void BM_Frame(benchmark::State& state, const std::string& preset,
   state.counters["rss_mb"] = double(ResidentBytes()) / (1 << 20);
 }
 
+// Stage/Slide and Stage/Preprocess: the two per-frame stages of IntegrateScan before training,
+// each timed on its own (manual time) while the mapper runs whole frames as Frame/ does.
+enum class FrameStage { kSlide, kPreprocess };
+
+void BM_FrameStage(benchmark::State& state, const std::string& preset, FrameStage stage) {
+  const std::vector<PosedScan>& frames = CitySequence();
+  std::unique_ptr<Mapper> mapper = NewMapper(preset);
+  size_t k = 0;
+  for (; k < size_t(Options().warmup_frames) && k < frames.size(); ++k)
+    CheckOk(mapper->IntegrateScan(frames[k]), "IntegrateScan (warm-up)");
+  StageTimings sum;
+  for (auto _ : state) {
+    if (k >= frames.size()) {
+      state.SkipWithError("the sequence is shorter than warm-up plus measured frames");
+      break;
+    }
+    StageTimings t;
+    CheckOk(mapper->IntegrateScan(frames[k++], -1, &t), "IntegrateScan");
+    state.SetIterationTime(stage == FrameStage::kSlide ? t.slide_s : t.preprocess_s);
+    sum += t;
+  }
+  SetStageCounters(state, sum);
+}
+
 void BM_Sequence(benchmark::State& state, const std::string& preset) {
   const std::vector<PosedScan>& frames = CitySequence();
   std::FILE* csv = nullptr;
@@ -119,6 +146,17 @@ void RegisterFrameBenchmarks() {
           ->Unit(benchmark::kMillisecond)
           ->UseRealTime();
     }
+  }
+}
+
+void RegisterFrameStageBenchmarks() {
+  // The box moves with the robot at every preset's speed the same way: one preset is enough.
+  for (const auto& [name, stage] : {std::pair{"Stage/Slide", FrameStage::kSlide},
+                                    std::pair{"Stage/Preprocess", FrameStage::kPreprocess}}) {
+    benchmark::RegisterBenchmark(name, BM_FrameStage, std::string("maicity_online"), stage)
+        ->Iterations(Options().measured_frames)
+        ->Unit(benchmark::kMillisecond)
+        ->UseManualTime();
   }
 }
 

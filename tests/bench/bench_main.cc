@@ -94,6 +94,7 @@ int main(int argc, char** argv) {
 
   rim::bench::CitySequence();  // made before anything is timed
   rim::bench::RegisterStageBenchmarks();
+  rim::bench::RegisterFrameStageBenchmarks();
   rim::bench::RegisterReferenceBenchmarks();
   rim::bench::RegisterFrameBenchmarks();
   rim::bench::RegisterMapBenchmarks();
