@@ -4,9 +4,10 @@
 #include <cassert>
 #include <cmath>
 #include <cstdint>
-#include <unordered_map>
-#include <unordered_set>
 #include <vector>
+
+#include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
 
 namespace rim {
 namespace {
@@ -177,9 +178,9 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
   if (!samples.lookup) return mesh;
   const CaseTable& table = GetCaseTable();
 
-  std::unordered_map<Int3, Sample, Int3Hash, Int3Equal> cache;
-  std::unordered_map<EdgeKey, uint32_t, EdgeKeyHash> edge_vertex;
-  std::unordered_set<Int3, Int3Hash, Int3Equal> done_cells;
+  absl::flat_hash_map<Int3, Sample, Int3Hash, Int3Equal> cache;
+  absl::flat_hash_map<EdgeKey, uint32_t, EdgeKeyHash> edge_vertex;
+  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_cells;
   cache.reserve(cells.size() * 2);
   done_cells.reserve(cells.size());
 

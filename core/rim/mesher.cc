@@ -2,9 +2,9 @@
 
 #include <cmath>
 #include <mutex>
-#include <unordered_map>
-#include <unordered_set>
 
+#include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
 #include "absl/strings/str_cat.h"
 #include "rim/encoder.h"
 #include "rim/marching_cubes.h"
@@ -50,7 +50,7 @@ absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, 
   const double step = geo.leaf_m() / r;
 
   std::vector<Int3> cells;
-  std::unordered_set<Int3, Int3Hash, Int3Equal> observed_voxels;
+  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> observed_voxels;
   {
     std::shared_lock<std::shared_mutex> lock(src.mutex);
     for (const Int3& g : ObservedVoxels(src, key)) {
@@ -65,10 +65,10 @@ absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, 
   // Grid points of the cells, and whether each lies in an observed voxel. A point on a voxel face
   // belongs to every voxel that shares it; it counts as observed if any of them is, so that
   // meshes of neighbouring observed voxels join up.
-  std::unordered_map<Int3, float, Int3Hash, Int3Equal> values;
+  absl::flat_hash_map<Int3, float, Int3Hash, Int3Equal> values;
   std::vector<Int3> points;
   {
-    std::unordered_set<Int3, Int3Hash, Int3Equal> seen;
+    absl::flat_hash_set<Int3, Int3Hash, Int3Equal> seen;
     std::shared_lock<std::shared_mutex> lock(src.mutex);
     FeatureReader reader(src.local_map, src.store);
     auto observed = [&](const Int3& m) {
