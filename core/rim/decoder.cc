@@ -52,6 +52,10 @@ Decoder::Decoder(int input_dim, const DecoderConfig& config) : input_dim_(input_
 }
 
 void Decoder::Forward(const float* features, int n, float* sdf, float* dsdf_dfeatures) const {
+  if (dsdf_dfeatures == nullptr) {
+    ForwardBlocked(features, n, sdf);
+    return;
+  }
   const int nl = int(layers_.size());
   std::vector<float> act(size_t(nl + 1) * max_width_);
   std::vector<float> delta(max_width_), prev(max_width_);
@@ -91,6 +95,47 @@ void Decoder::Forward(const float* features, int n, float* sdf, float* dsdf_dfea
       }
     }
     std::copy(prev.begin(), prev.begin() + input_dim_, dsdf_dfeatures + size_t(p) * input_dim_);
+  }
+}
+
+void Decoder::ForwardBlocked(const float* features, int n, float* sdf) const {
+  // Points go through in blocks of kLanes, activations stored lane-minor (a[i·kLanes + j] is
+  // input i of point j), so the innermost loop runs across points and vectorises. Each lane does
+  // exactly the one-point loop's arithmetic in the same order (bias, then the products added one
+  // input at a time, no fused multiply-add), so a point's SDF is bit-identical to the gradient
+  // path's and does not depend on the batch it came in: tiles meshed apart agree on their shared
+  // faces. A short last block is padded with zero features.
+  constexpr int kLanes = 8;
+  const int nl = int(layers_.size());
+  std::vector<float> buf(size_t(2) * max_width_ * kLanes);
+  float* a_in = buf.data();
+  float* a_out = buf.data() + size_t(max_width_) * kLanes;
+  for (int p0 = 0; p0 < n; p0 += kLanes) {
+    const int m = std::min(kLanes, n - p0);
+    for (int i = 0; i < input_dim_; ++i)
+      for (int j = 0; j < kLanes; ++j)
+        a_in[i * kLanes + j] = j < m ? features[size_t(p0 + j) * input_dim_ + i] : 0.f;
+    float* in = a_in;
+    float* out = a_out;
+    for (int k = 0; k < nl; ++k) {
+      const Layer& L = layers_[k];
+      const float* W = &params_[L.weight_offset];
+      const float* b = &params_[L.bias_offset];
+      const bool relu = k + 1 < nl;
+      for (int o = 0; o < L.out; ++o) {
+        float s[kLanes];
+        for (int j = 0; j < kLanes; ++j) s[j] = b[o];
+        const float* w = W + size_t(o) * L.in;
+        for (int i = 0; i < L.in; ++i) {
+          const float wi = w[i];
+          const float* x = in + size_t(i) * kLanes;
+          for (int j = 0; j < kLanes; ++j) s[j] += wi * x[j];
+        }
+        for (int j = 0; j < kLanes; ++j) out[o * kLanes + j] = relu ? std::max(s[j], 0.f) : s[j];
+      }
+      std::swap(in, out);
+    }
+    for (int j = 0; j < m; ++j) sdf[p0 + j] = in[j];
   }
 }
 

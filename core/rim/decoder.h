@@ -100,6 +100,9 @@ class Decoder {
   absl::Status Deserialize(ByteReader* r);
 
  private:
+  // Forward without the gradient, points in blocks across SIMD lanes (same bits per point).
+  void ForwardBlocked(const float* features, int n, float* sdf) const;
+
   int input_dim_;
   std::vector<Layer> layers_;
   std::vector<float> params_, adam_m_, adam_v_;
