@@ -98,45 +98,76 @@ void Decoder::Forward(const float* features, int n, float* sdf, float* dsdf_dfea
   }
 }
 
-void Decoder::ForwardBlocked(const float* features, int n, float* sdf) const {
-  // Points go through in blocks of kLanes, activations stored lane-minor (a[i·kLanes + j] is
-  // input i of point j), so the innermost loop runs across points and vectorises. Each lane does
-  // exactly the one-point loop's arithmetic in the same order (bias, then the products added one
-  // input at a time, no fused multiply-add), so a point's SDF is bit-identical to the gradient
-  // path's and does not depend on the batch it came in: tiles meshed apart agree on their shared
-  // faces. A short last block is padded with zero features.
-  constexpr int kLanes = 8;
-  const int nl = int(layers_.size());
-  std::vector<float> buf(size_t(2) * max_width_ * kLanes);
-  float* a_in = buf.data();
-  float* a_out = buf.data() + size_t(max_width_) * kLanes;
+namespace {
+// The layers of one block of kLanes points, activations lane-minor (a[i·kLanes + j] is input i of
+// point j): the innermost loops run across points and vectorise. Each lane does exactly the
+// one-point loop's arithmetic in the same order (bias, then the products added one input at a
+// time); multiplies and adds stay separate (no fused multiply-add in either path), so the bits
+// are the same whatever vector width the compiler picks.
+constexpr int kLanes = 8;
+
+template <typename Layers>
+inline const float* LayersForBlock(const Layers& layers, const float* params, float* in,
+                                   float* out) {
+  const int nl = int(layers.size());
+  for (int k = 0; k < nl; ++k) {
+    const auto& L = layers[k];
+    const float* W = params + L.weight_offset;
+    const float* b = params + L.bias_offset;
+    const bool relu = k + 1 < nl;
+    for (int o = 0; o < L.out; ++o) {
+      float s[kLanes];
+      for (int j = 0; j < kLanes; ++j) s[j] = b[o];
+      const float* w = W + size_t(o) * L.in;
+      for (int i = 0; i < L.in; ++i) {
+        const float wi = w[i];
+        const float* x = in + size_t(i) * kLanes;
+        for (int j = 0; j < kLanes; ++j) s[j] += wi * x[j];
+      }
+      for (int j = 0; j < kLanes; ++j) out[o * kLanes + j] = relu ? std::max(s[j], 0.f) : s[j];
+    }
+    std::swap(in, out);
+  }
+  return in;
+}
+
+// Blocks of points through the layers; a short last block is padded with zero features.
+template <typename Layers>
+inline void ForwardBlocks(const Layers& layers, const float* params, int input_dim, int max_width,
+                          const float* features, int n, float* sdf) {
+  std::vector<float> buf(size_t(2) * max_width * kLanes);
   for (int p0 = 0; p0 < n; p0 += kLanes) {
     const int m = std::min(kLanes, n - p0);
-    for (int i = 0; i < input_dim_; ++i)
+    float* a = buf.data();
+    for (int i = 0; i < input_dim; ++i)
       for (int j = 0; j < kLanes; ++j)
-        a_in[i * kLanes + j] = j < m ? features[size_t(p0 + j) * input_dim_ + i] : 0.f;
-    float* in = a_in;
-    float* out = a_out;
-    for (int k = 0; k < nl; ++k) {
-      const Layer& L = layers_[k];
-      const float* W = &params_[L.weight_offset];
-      const float* b = &params_[L.bias_offset];
-      const bool relu = k + 1 < nl;
-      for (int o = 0; o < L.out; ++o) {
-        float s[kLanes];
-        for (int j = 0; j < kLanes; ++j) s[j] = b[o];
-        const float* w = W + size_t(o) * L.in;
-        for (int i = 0; i < L.in; ++i) {
-          const float wi = w[i];
-          const float* x = in + size_t(i) * kLanes;
-          for (int j = 0; j < kLanes; ++j) s[j] += wi * x[j];
-        }
-        for (int j = 0; j < kLanes; ++j) out[o * kLanes + j] = relu ? std::max(s[j], 0.f) : s[j];
-      }
-      std::swap(in, out);
-    }
-    for (int j = 0; j < m; ++j) sdf[p0 + j] = in[j];
+        a[i * kLanes + j] = j < m ? features[size_t(p0 + j) * input_dim + i] : 0.f;
+    const float* y = LayersForBlock(layers, params, a, a + size_t(max_width) * kLanes);
+    for (int j = 0; j < m; ++j) sdf[p0 + j] = y[j];
   }
+}
+
+// The same code compiled for 8-wide AVX registers (still without FMA), chosen at run time.
+__attribute__((target("avx2"))) void ForwardBlocksAvx2(const std::vector<Decoder::Layer>& layers,
+                                                       const float* params, int input_dim,
+                                                       int max_width, const float* features, int n,
+                                                       float* sdf) {
+  ForwardBlocks(layers, params, input_dim, max_width, features, n, sdf);
+}
+
+void ForwardBlocksBaseline(const std::vector<Decoder::Layer>& layers, const float* params,
+                           int input_dim, int max_width, const float* features, int n, float* sdf) {
+  ForwardBlocks(layers, params, input_dim, max_width, features, n, sdf);
+}
+}  // namespace
+
+void Decoder::ForwardBlocked(const float* features, int n, float* sdf) const {
+  // Points go through in blocks across SIMD lanes with the one-point arithmetic per lane, so a
+  // point's SDF is bit-identical to the gradient path's and does not depend on the batch it came
+  // in: tiles meshed apart agree on their shared faces.
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  (avx2 ? ForwardBlocksAvx2 : ForwardBlocksBaseline)(layers_, params_.data(), input_dim_,
+                                                     max_width_, features, n, sdf);
 }
 
 void Decoder::Step(const AdamHyper& hyper, const std::vector<float>& grad) {
