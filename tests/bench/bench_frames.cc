@@ -48,8 +48,11 @@ void SetStageCounters(benchmark::State& state, const StageTimings& t) {
       benchmark::Counter(t.iterations, benchmark::Counter::kAvgIterations);
 }
 
-void BM_Frame(benchmark::State& state, const std::string& preset,
-              const std::vector<std::string>& overrides) {
+// A fresh mapper integrates the warm-up frames untimed, then one frame per benchmark iteration;
+// `after_frame` sees each measured frame's StageTimings. The stage counters are set at the end.
+template <typename Fn>
+void RunFrames(benchmark::State& state, const std::string& preset,
+               const std::vector<std::string>& overrides, Fn&& after_frame) {
   const std::vector<PosedScan>& frames = CitySequence();
   std::unique_ptr<Mapper> mapper = NewMapper(preset, overrides);
   size_t k = 0;
@@ -63,9 +66,15 @@ void BM_Frame(benchmark::State& state, const std::string& preset,
     }
     StageTimings t;
     CheckOk(mapper->IntegrateScan(frames[k++], -1, &t), "IntegrateScan");
+    after_frame(t);
     sum += t;
   }
   SetStageCounters(state, sum);
+}
+
+void BM_Frame(benchmark::State& state, const std::string& preset,
+              const std::vector<std::string>& overrides) {
+  RunFrames(state, preset, overrides, [](const StageTimings&) {});
   state.counters["rss_mb"] = double(ResidentBytes()) / (1 << 20);
 }
 
@@ -74,23 +83,9 @@ void BM_Frame(benchmark::State& state, const std::string& preset,
 enum class FrameStage { kSlide, kPreprocess };
 
 void BM_FrameStage(benchmark::State& state, const std::string& preset, FrameStage stage) {
-  const std::vector<PosedScan>& frames = CitySequence();
-  std::unique_ptr<Mapper> mapper = NewMapper(preset);
-  size_t k = 0;
-  for (; k < size_t(Options().warmup_frames) && k < frames.size(); ++k)
-    CheckOk(mapper->IntegrateScan(frames[k]), "IntegrateScan (warm-up)");
-  StageTimings sum;
-  for (auto _ : state) {
-    if (k >= frames.size()) {
-      state.SkipWithError("the sequence is shorter than warm-up plus measured frames");
-      break;
-    }
-    StageTimings t;
-    CheckOk(mapper->IntegrateScan(frames[k++], -1, &t), "IntegrateScan");
+  RunFrames(state, preset, {}, [&](const StageTimings& t) {
     state.SetIterationTime(stage == FrameStage::kSlide ? t.slide_s : t.preprocess_s);
-    sum += t;
-  }
-  SetStageCounters(state, sum);
+  });
 }
 
 void BM_Sequence(benchmark::State& state, const std::string& preset) {
