@@ -102,12 +102,4 @@ void ForEachRunInDifference(const IntBox& a, const IntBox& b, Fn&& fn) {
   }
 }
 
-// Calls fn(g) for every point of `a` that is not in `b`, run by run (ForEachRunInDifference).
-template <typename Fn>
-void ForEachInDifference(const IntBox& a, const IntBox& b, Fn&& fn) {
-  ForEachRunInDifference(a, b, [&fn](const Int3& start, int n) {
-    for (int i = 0; i < n; ++i) fn(Int3(start.x(), start.y(), start.z() + i));
-  });
-}
-
 }  // namespace rim

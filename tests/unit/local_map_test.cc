@@ -6,6 +6,7 @@
 #include <array>
 #include <cstdint>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <random>
 #include <string>
@@ -297,6 +298,38 @@ INSTANTIATE_TEST_SUITE_P(SaveModes, LocalMapSlidingTest,
                                                                       : "Synchronous") +
                                   (std::get<1>(info.param) ? "RunLoads" : "VoxelLoads");
                          });
+
+TEST(LocalMapTest, RunsInDifferenceCoverItExactlyOnce) {
+  // Random pairs of boxes, overlapping, nested, disjoint, or empty in z: the runs cover every
+  // point of a that is not in b once, and nothing else.
+  std::mt19937_64 rng(11);
+  std::uniform_int_distribution<int> lo(-6, 6), size(-1, 8);
+  for (int trial = 0; trial < 300; ++trial) {
+    IntBox a, b;
+    for (IntBox* box : {&a, &b})
+      for (int axis = 0; axis < 3; ++axis) {
+        box->lo[axis] = lo(rng);
+        box->hi[axis] = box->lo[axis] + size(rng);
+      }
+    std::map<std::tuple<int, int, int>, int> seen;
+    ForEachRunInDifference(a, b, [&](const Int3& start, int n) {
+      ASSERT_GE(n, 1);
+      for (int i = 0; i < n; ++i) ++seen[{start.x(), start.y(), start.z() + i}];
+    });
+    int64_t expected = 0;
+    for (int x = a.lo.x(); x <= a.hi.x(); ++x)
+      for (int y = a.lo.y(); y <= a.hi.y(); ++y)
+        for (int z = a.lo.z(); z <= a.hi.z(); ++z) {
+          const bool in_b = b.Contains(Int3(x, y, z));
+          const auto it = seen.find({x, y, z});
+          const int count = it == seen.end() ? 0 : it->second;
+          ASSERT_EQ(count, in_b ? 0 : 1)
+              << "trial " << trial << " at " << x << "," << y << "," << z;
+          expected += !in_b;
+        }
+    ASSERT_EQ(int64_t(seen.size()), expected) << "trial " << trial << ": points outside a";
+  }
+}
 
 TEST(LocalMapTest, MoveToSameOriginIsNoOp) {
   SlidingHarness h(/*background=*/false, /*seed=*/7);
