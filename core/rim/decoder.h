@@ -56,9 +56,10 @@ inline void AdamUpdateRow(const AdamHyper& h, float step_size, float inv_sqrt_bc
   }
 }
 
-// The same update for a row of compile-time length N: the loop is unrolled and vectorised
-// (sqrt and division included, which the compiler does not vectorise over a runtime length).
-// Element for element the same arithmetic as AdamUpdateRow, so the results are bit-identical.
+// The same update for a row of compile-time length N, unrolled. Element for element the same
+// arithmetic as AdamUpdateRow, so the results are bit-identical. The compiler may still leave it
+// scalar (it did for the local map's rows, whose m and v share a record); x86 builds of the
+// trainer use an explicit SSE row instead (trainer.cc).
 template <int N>
 inline void AdamUpdateFixedRow(const AdamHyper& h, float step_size, float inv_sqrt_bc2,
                                const float* grad, float* param, float* m, float* v) {

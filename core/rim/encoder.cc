@@ -138,14 +138,24 @@ void SparseGradient::ScatterLevel(LocalMap* map, const LocalEncoding& enc,
     for (int c = 0; c < 8; ++c) {
       const int64_t slot = slots[c];
       LocalMap::ScatterTag& tag = grid.scatter_tag(slot);
+      const float wc = w[c];
       if (tag.stamp != stamp_) {
+        // A new row is written, not read and added to: its line (last used an iteration ago)
+        // need not arrive before the next corner can go on. 0 + x keeps the sums' bits (and a
+        // -0 turned +0) as a cleared row would.
         tag.stamp = stamp_;
-        tag.row = int32_t(lv.touched.size());
-        std::fill_n(&lv.grad[lv.touched.size() * D], D, 0.f);
+        const size_t row = lv.touched.size();
+        tag.row = int32_t(row);
         lv.touched.push_back(slot);
+        float* __restrict dst = &lv.grad[row * D];
+        if (D == 8) {
+          for (int d = 0; d < 8; ++d) dst[d] = 0.f + wc * g8[d];
+        } else {
+          for (int d = 0; d < D; ++d) dst[d] = 0.f + wc * g[d];
+        }
+        continue;
       }
       float* __restrict dst = &lv.grad[size_t(tag.row) * D];
-      const float wc = w[c];
       if (D == 8) {  // every preset: two 4-wide multiply-adds
         for (int d = 0; d < 8; ++d) dst[d] += wc * g8[d];
       } else {

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <map>
 #include <random>
 #include <set>
@@ -21,6 +22,7 @@
 #include "rim/local_map.h"
 #include "rim/map_geometry.h"
 #include "rim/submap_store.h"
+#include "rim/trainer.h"
 
 namespace rim {
 namespace {
@@ -261,6 +263,81 @@ TEST_F(EncoderTest, SparseGradientMatchesReferenceAndFiniteDifferences) {
     const std::set<int64_t> got(sg.level(l).touched.begin(), sg.level(l).touched.end());
     EXPECT_EQ(got, expect) << "level " << l;
     EXPECT_EQ(sg.level(l).touched.size(), 8u);
+  }
+}
+
+// The trainer's lazy Adam pass over the touched rows (vectorised for D = 8) against the plain
+// per-element AdamUpdateRow, bit for bit, from non-zero moments and mixed step counts; rows that
+// no point touched do not move.
+TEST_F(EncoderTest, TouchedRowsUpdateIsThePlainAdamRowBitForBit) {
+  PlaceAndFill(&map_, Int3(-3, 2, -1), 12);
+  const int n = 300, L = geo_.levels(), D = geo_.feature_dim(), F = geo_.encoding_dim();
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  std::uniform_int_distribution<int> steps(0, 40);
+  for (int l = 0; l < L; ++l) {
+    LocalMap::Level& lv = map_.level(l);
+    for (int64_t s = 0; s < lv.slots(); ++s) {
+      for (int d = 0; d < D; ++d) {
+        lv.adam_m(s)[d] = 1e-2f * u(rng);
+        lv.adam_v(s)[d] = 1e-4f * std::abs(u(rng));
+      }
+      lv.adam_steps(s) = steps(rng);
+    }
+  }
+  const std::vector<float> xyz = RandomPointsInBox(map_, n, 14);
+  std::vector<float> upstream(size_t(n) * F);
+  for (float& g : upstream) g = u(rng);
+  LocalEncoding enc;
+  std::vector<float> features(size_t(n) * F);
+  EncodeLocal(map_, xyz.data(), n, &enc, features.data());
+  SparseGradient sg;
+  sg.Reset(map_);
+  sg.BeginIteration(&map_);
+  sg.Scatter(&map_, enc, upstream.data());
+
+  const AdamHyper h{1e-2f, 0.9f, 0.999f, 1e-15f};
+  const AdamBiasTable bias(h);
+  for (int l = 0; l < L; ++l) {
+    LocalMap::Level& lv = map_.level(l);
+    const std::vector<float> f0 = lv.FeatureCopy();
+    std::vector<float> m0(size_t(lv.slots()) * D), v0(m0.size());
+    std::vector<int32_t> t0(size_t(lv.slots()));
+    for (int64_t s = 0; s < lv.slots(); ++s) {
+      std::copy_n(lv.adam_m(s), D, &m0[size_t(s) * D]);
+      std::copy_n(lv.adam_v(s), D, &v0[size_t(s) * D]);
+      t0[size_t(s)] = lv.adam_steps(s);
+    }
+    const SparseGradient::Level& g = sg.level(l);
+    ASSERT_GT(g.touched.size(), 8u);
+    // Two ranges, as the trainer's chunks split them.
+    const size_t mid = g.touched.size() / 3;
+    UpdateTouchedRows(h, bias, g, 0, mid, &lv);
+    UpdateTouchedRows(h, bias, g, mid, g.touched.size(), &lv);
+
+    std::vector<float> f1 = f0, m1 = m0, v1 = v0;
+    std::vector<int32_t> t1 = t0;
+    for (size_t r = 0; r < g.touched.size(); ++r) {
+      const size_t s = size_t(g.touched[r]);
+      float step_size, inv_sqrt_bc2;
+      bias.Get(++t1[s], &step_size, &inv_sqrt_bc2);
+      AdamUpdateRow(h, step_size, inv_sqrt_bc2, D, &g.grad[r * D], &f1[s * D], &m1[s * D],
+                    &v1[s * D]);
+    }
+    const std::vector<float> f2 = lv.FeatureCopy();
+    size_t diff = 0;
+    for (int64_t s = 0; s < lv.slots(); ++s) {
+      const size_t o = size_t(s) * D;
+      if (std::memcmp(&f2[o], &f1[o], D * sizeof(float)) != 0 ||
+          std::memcmp(lv.adam_m(s), &m1[o], D * sizeof(float)) != 0 ||
+          std::memcmp(lv.adam_v(s), &v1[o], D * sizeof(float)) != 0 ||
+          lv.adam_steps(s) != t1[size_t(s)])
+        ++diff;
+    }
+    EXPECT_EQ(diff, 0u) << "level " << l << ": slots that differ from the plain Adam row";
+    // The update did move the touched rows.
+    const size_t s0 = size_t(g.touched[0]) * D;
+    EXPECT_NE(std::memcmp(&f2[s0], &f0[s0], D * sizeof(float)), 0) << "level " << l;
   }
 }
 
