@@ -52,6 +52,13 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
   const double s = map->geometry().leaf_m();
   const Vec3d lo = map->min_m(), hi = map->max_m();
   LocalMap::Level& lv = map->level(0);
+  const Int3 dims = lv.dims;
+  const int64_t axis_stride[3] = {int64_t(dims.y()) * dims.z(), dims.z(), 1};
+  const int64_t wrap[3] = {dims.x() * axis_stride[0], dims.y() * axis_stride[1],
+                           dims.z() * axis_stride[2]};
+  const IntBox box = map->LatticeBox(0);
+  const uint32_t span[3] = {uint32_t(box.hi.x() - box.lo.x()), uint32_t(box.hi.y() - box.lo.y()),
+                            uint32_t(box.hi.z() - box.lo.z())};
   const size_t n = points_W.size();
   // Ray j of the walk is point floor(j · stride).
   const double stride = std::max(1.0, double(n) / max_rays);
@@ -86,17 +93,37 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
           t_delta[a] = std::numeric_limits<double>::infinity();
         }
       }
+      // The slot follows the walk: one step along axis a moves it by the axis's stride, and
+      // by one ring length back where the ring wraps. No modulo per voxel.
+      Int3 ring;
+      int64_t slot = 0;
+      for (int a = 0; a < 3; ++a) {
+        ring[a] = PosMod(g[a], dims[a]);
+        slot = slot * dims[a] + ring[a];
+      }
       double t = t0;
       while (t < t1) {
         // Rounding at the box faces can put the first or last voxel just outside.
-        if (map->InBox(0, g))
-          SetFlagBits(&lv.flags(map->Slot(0, g)), LocalMap::kSeenFree | LocalMap::kHasData);
-        int a = 0;
-        if (t_max[1] < t_max[a]) a = 1;
-        if (t_max[2] < t_max[a]) a = 2;
+        if (uint32_t(g.x() - box.lo.x()) <= span[0] && uint32_t(g.y() - box.lo.y()) <= span[1] &&
+            uint32_t(g.z() - box.lo.z()) <= span[2])
+          SetFlagBits(&lv.flags(slot), LocalMap::kSeenFree | LocalMap::kHasData);
+        // The axis whose boundary comes first, chosen without branches: it changes at random
+        // from voxel to voxel, and a mispredicted branch cost more than the rest of the step.
+        const bool y_first = t_max[1] < t_max[0];
+        const double t_xy = y_first ? t_max[1] : t_max[0];
+        const int a = t_max[2] < t_xy ? 2 : int(y_first);
         t = t_max[a];
         t_max[a] += t_delta[a];
         g[a] += step[a];
+        ring[a] += step[a];
+        slot += step[a] * axis_stride[a];
+        if (ring[a] == dims[a]) {
+          ring[a] = 0;
+          slot -= wrap[a];
+        } else if (ring[a] < 0) {
+          ring[a] = dims[a] - 1;
+          slot += wrap[a];
+        }
       }
     }
   });
@@ -106,13 +133,31 @@ void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map, Worker
   if (!map->placed()) return;
   const double inv_s = 1.0 / map->geometry().leaf_m();
   LocalMap::Level& lv = map->level(0);
+  // A point in the box is at most one ring length past the box corner's ring position, so its
+  // ring position per axis is one compare and subtract away: no modulo per point.
+  const IntBox box = map->LatticeBox(0);
+  const Int3 dims = lv.dims;
+  int lo_ring[3];
+  uint32_t span[3];
+  for (int a = 0; a < 3; ++a) {
+    lo_ring[a] = PosMod(box.lo[a], dims[a]);
+    span[a] = uint32_t(box.hi[a] - box.lo[a]);
+  }
   ForRanges(points_W.size(), pool, [&](size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
       const Vec3f& p = points_W[i];
       const Int3 g(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
                    int(std::floor(p.z() * inv_s)));
-      if (map->InBox(0, g))
-        SetFlagBits(&lv.flags(map->Slot(0, g)), LocalMap::kObserved | LocalMap::kHasData);
+      uint32_t r[3];  // below the box: a huge unsigned value
+      for (int a = 0; a < 3; ++a) r[a] = uint32_t(g[a] - box.lo[a]);
+      if (r[0] > span[0] || r[1] > span[1] || r[2] > span[2]) continue;
+      int ring[3];
+      for (int a = 0; a < 3; ++a) {
+        ring[a] = lo_ring[a] + int(r[a]);
+        if (ring[a] >= dims[a]) ring[a] -= dims[a];
+      }
+      const int64_t slot = (int64_t(ring[0]) * dims.y() + ring[1]) * dims.z() + ring[2];
+      SetFlagBits(&lv.flags(slot), LocalMap::kObserved | LocalMap::kHasData);
     }
   });
 }

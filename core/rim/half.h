@@ -56,8 +56,10 @@ inline float HalfToFloat(uint16_t h) {
 // The float a value reads back as after a trip through half storage.
 inline float RoundToHalf(float value) { return HalfToFloat(FloatToHalf(value)); }
 
-// Bulk forms. HalvesToFloats uses the CPU's conversion instructions (F16C) where it has them;
-// both conversions are exact there, so the result is the same either way.
+// Bulk forms. Both use the CPU's conversion instructions (F16C) where it has them, and give the
+// scalar forms' bits either way: widening is exact; narrowing rounds to nearest even in both,
+// and a group of eight floats holding a value that the hardware would turn into infinity (or a
+// NaN) is narrowed by FloatToHalf.
 void FloatsToHalves(const float* in, size_t n, uint16_t* out);
 void HalvesToFloats(const uint16_t* in, size_t n, float* out);
 

@@ -73,7 +73,8 @@ void SubmapStore::Write(const SlabBatch& batch) {
   std::lock_guard<std::mutex> lock(mu_);
   Submap* cached_submap = nullptr;
   Int3 cached_key(INT32_MIN, 0, 0);
-  for (size_t i = 0; i < batch.points.size(); ++i) {
+  const size_t n = batch.points.size();
+  for (size_t i = 0; i < n;) {
     const Int3& g = batch.points[i];
     const Int3 key = geometry_.SubmapOfLattice(l, g);
     if (!cached_submap || key != cached_key) {
@@ -104,8 +105,19 @@ void SubmapStore::Write(const SlabBatch& batch) {
     Block& block = *it->second;
     const Int3 in = local - block_key * B;
     const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
-    FloatsToHalves(&batch.features[i * D], size_t(D), &block.features[idx * D]);
-    if (l == 0 && i < batch.observed.size()) block.observed[idx] = batch.observed[i];
+    // Slabs leave the box as z runs: the points that follow g along z in the same block (and
+    // the same sub-map, whose border may cut a block short) are stored with this one, their
+    // slots consecutive in the block as in the batch.
+    const int room = std::min(B - in.z(), cells.z() - local.z());
+    size_t len = 1;
+    while (i + len < n && len < size_t(room) && batch.points[i + len].z() == g.z() + int(len) &&
+           batch.points[i + len].x() == g.x() && batch.points[i + len].y() == g.y())
+      ++len;
+    FloatsToHalves(&batch.features[i * D], len * D, &block.features[idx * D]);
+    if (l == 0)
+      for (size_t k = 0; k < len && i + k < batch.observed.size(); ++k)
+        block.observed[idx + k] = batch.observed[i + k];
+    i += len;
   }
 }
 

@@ -2,7 +2,9 @@
 // are marked seen free, exactly those, and the surface band and the space behind stay unmarked.
 #include "rim/free_space.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 #include <tuple>
@@ -113,6 +115,97 @@ TEST_F(FreeSpaceTest, MarksTheSameWithAPool) {
     EXPECT_EQ(pooled.level(0).FlagCopy(), alone) << threads << " threads";
   }
   EXPECT_GT(CountSeenFree(), 2000);
+}
+
+// The plain walk: the same voxel sequence, each voxel's slot from LocalMap::Slot (a modulo per
+// axis). The marking follows the slot along the ring instead (and surface marking steps from the
+// box corner's ring position); they must agree wherever the ring wraps inside the box.
+void ReferenceMarkFreeSpace(const std::vector<Vec3f>& points, const std::vector<Vec3f>& origins,
+                            float band_m, LocalMap* map) {
+  const double s = map->geometry().leaf_m();
+  const Vec3d lo = map->min_m(), hi = map->max_m();
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Vec3d o = origins[i].cast<double>();
+    Vec3d d = points[i].cast<double>() - o;
+    const double range = d.norm();
+    if (range <= band_m) continue;
+    d /= range;
+    double t0 = 0, t1 = range - band_m;
+    bool empty = false;
+    for (int a = 0; a < 3 && !empty; ++a) {
+      if (std::abs(d[a]) < 1e-12) {
+        empty = o[a] < lo[a] || o[a] >= hi[a];
+        continue;
+      }
+      double ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    if (empty || !(t0 < t1)) continue;
+    const Vec3d p = o + t0 * d;
+    Int3 g(int(std::floor(p.x() / s)), int(std::floor(p.y() / s)), int(std::floor(p.z() / s)));
+    Int3 step;
+    Vec3d t_max, t_delta;
+    for (int a = 0; a < 3; ++a) {
+      step[a] = d[a] > 0 ? 1 : d[a] < 0 ? -1 : 0;
+      t_max[a] = d[a] > 0   ? t0 + ((g[a] + 1) * s - p[a]) / d[a]
+                 : d[a] < 0 ? t0 + (g[a] * s - p[a]) / d[a]
+                            : std::numeric_limits<double>::infinity();
+      t_delta[a] = d[a] != 0 ? std::abs(s / d[a]) : std::numeric_limits<double>::infinity();
+    }
+    for (double t = t0; t < t1;) {
+      if (map->InBox(0, g))
+        map->level(0).flags(map->Slot(0, g)) |= LocalMap::kSeenFree | LocalMap::kHasData;
+      int a = 0;
+      if (t_max[1] < t_max[a]) a = 1;
+      if (t_max[2] < t_max[a]) a = 2;
+      t = t_max[a];
+      t_max[a] += t_delta[a];
+      g[a] += step[a];
+    }
+  }
+}
+
+TEST_F(FreeSpaceTest, MarksWhatPerVoxelSlotLookupsMarkWhereTheRingWraps) {
+  // A box whose ring wraps on every axis inside it, as after the robot drove a while.
+  for (const Int3& origin : {Int3(3, -7, 2), Int3(-5, 11, -3)}) {
+    LocalMap walked(geometry_), reference(geometry_);
+    walked.MoveTo(origin, nullptr, nullptr);
+    reference.MoveTo(origin, nullptr, nullptr);
+    const Vec3d lo = walked.min_m(), ext = walked.max_m() - walked.min_m();
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(0.0, 1.0), wide(-1.0, 2.0);
+    std::vector<Vec3f> points, origins;
+    for (int i = 0; i < 2000; ++i) {
+      Vec3d o, p;
+      for (int a = 0; a < 3; ++a) {
+        o[a] = lo[a] + ext[a] * (i % 4 ? u(rng) : wide(rng));  // some origins outside the box
+        p[a] = lo[a] + ext[a] * (i % 2 ? u(rng) : wide(rng));  // some endpoints beyond it
+      }
+      if (i % 50 == 0) p.z() = o.z();  // flat rays: no step along z
+      origins.push_back(o.cast<float>());
+      points.push_back(p.cast<float>());
+    }
+    MarkFreeSpace(points, origins, 0.15f, int(points.size()), &walked);
+    ReferenceMarkFreeSpace(points, origins, 0.15f, &reference);
+    // Surface marking finds each endpoint's slot without a modulo too.
+    MarkSurfaceVoxels(points, &walked);
+    const double inv_s = 1.0 / geometry_.leaf_m();  // as the marking rounds
+    int surface = 0;
+    for (const Vec3f& p : points) {
+      const Int3 g(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
+                   int(std::floor(p.z() * inv_s)));
+      if (!reference.InBox(0, g)) continue;
+      reference.level(0).flags(reference.Slot(0, g)) |= LocalMap::kObserved | LocalMap::kHasData;
+      ++surface;
+    }
+    EXPECT_GT(surface, 300) << origin.transpose();
+    EXPECT_EQ(walked.level(0).FlagCopy(), reference.level(0).FlagCopy()) << origin.transpose();
+    int marked = 0;
+    for (uint8_t f : walked.level(0).FlagCopy()) marked += (f & LocalMap::kSeenFree) != 0;
+    EXPECT_GT(marked, 3000) << origin.transpose();
+  }
 }
 
 }  // namespace

@@ -121,6 +121,26 @@ TEST(HalfTest, BulkConversionsEqualTheScalarOnes) {
   std::vector<uint16_t> out(in.size());
   FloatsToHalves(in.data(), in.size(), out.data());
   for (size_t i = 0; i < in.size(); ++i) EXPECT_EQ(out[i], FloatToHalf(in[i])) << in[i];
+
+  // Narrowing in bulk (the F16C path where the CPU has it) against FloatToHalf: random bit
+  // patterns of every class (subnormals, the saturation edge, infinities, NaNs) mixed into
+  // groups of eight, so that some groups hold one value the hardware would get wrong.
+  std::mt19937 rng(5);
+  std::vector<float> mixed(100003);
+  const uint32_t edges[] = {0x477fe000u, 0x477fdfffu, 0x477fe001u, 0x7f800000u,
+                            0x7fc00001u, 0x7f800001u, 0x38800000u, 0x387fffffu};
+  for (size_t i = 0; i < mixed.size(); ++i) {
+    uint32_t b = rng();
+    if (i % 97 == 0)
+      b = edges[(i / 97) % 8] | (rng() & 0x80000000u);
+    else if (rng() % 4 != 0)
+      b = (rng() % 0x477fe000u) | (rng() & 0x80000000u);  // in range
+    std::memcpy(&mixed[i], &b, 4);
+  }
+  std::vector<uint16_t> narrow(mixed.size());
+  FloatsToHalves(mixed.data(), mixed.size(), narrow.data());
+  for (size_t i = 0; i < mixed.size(); ++i)
+    ASSERT_EQ(narrow[i], FloatToHalf(mixed[i])) << "float bits 0x" << std::hex << Bits(mixed[i]);
 }
 
 }  // namespace

@@ -332,6 +332,57 @@ TEST_F(SubmapStoreTest, CachedReaderRunsReadWhatReadReads) {
   EXPECT_GT(absent, 1000) << "and places with nothing stored";
 }
 
+// A slab batch is stored a z run at a time; the result must be the store that voxel-by-voxel
+// writes make: runs across block and sub-map borders, runs broken by a gap or a new column, and
+// points written twice (the later wins), compared byte for byte through the serialised sub-maps.
+TEST_F(SubmapStoreTest, BatchWrittenByRunsEqualsVoxelByVoxelWrites) {
+  SubmapStore runs(geometry_, config_.submap), single(geometry_, config_.submap);
+  const int D = geometry_.feature_dim();
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<float> value(-2.f, 2.f);
+  for (int l = 0; l < geometry_.levels(); ++l) {
+    const Int3 c = geometry_.cells(l);
+    std::uniform_int_distribution<int> xy(-c.x(), c.x()), z(-c.z(), 2 * c.z());
+    std::uniform_int_distribution<int> length(1, 2 * c.z());
+    SlabBatch batch;
+    batch.level = l;
+    for (int r = 0; r < 60; ++r) {
+      const Int3 g(xy(rng), xy(rng), z(rng));
+      const int n = length(rng);
+      for (int k = 0; k < n; ++k) {
+        if (k > 0 && rng() % 17 == 0) continue;  // a gap breaks the run
+        batch.points.emplace_back(g.x(), g.y(), g.z() + k);
+      }
+      if (r % 10 == 0) batch.points.push_back(batch.points[batch.points.size() / 2]);  // again
+      // z goes on, but in the next column: a new run.
+      const Int3 last = batch.points.back();
+      if (r % 3 == 0) batch.points.emplace_back(last.x() + 1, last.y(), last.z() + 1);
+      if (r % 3 == 1) batch.points.emplace_back(last.x(), last.y() + 1, last.z() + 1);
+    }
+    for (size_t i = 0; i < batch.points.size(); ++i) {
+      for (int d = 0; d < D; ++d) batch.features.push_back(value(rng));
+      if (l == 0) batch.observed.push_back(uint8_t(rng() % 8) & LocalMap::kObservedBits);
+    }
+    runs.Write(batch);
+    for (size_t i = 0; i < batch.points.size(); ++i) {
+      SlabBatch one;
+      one.level = l;
+      one.points = {batch.points[i]};
+      one.features.assign(batch.features.begin() + i * D, batch.features.begin() + (i + 1) * D);
+      if (l == 0) one.observed = {batch.observed[i]};
+      single.Write(one);
+    }
+  }
+  ASSERT_EQ(KeySet(runs), KeySet(single));
+  ASSERT_GT(runs.Keys().size(), 4u);
+  for (const Int3& key : runs.Keys()) {
+    auto a = runs.SerializeSubmap(key), b = single.SerializeSubmap(key);
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_EQ(*a, *b) << "sub-map " << SubmapKeyName(key);
+  }
+  EXPECT_EQ(runs.Stats().blocks, single.Stats().blocks);
+}
+
 TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
   SubmapStore store(geometry_, config_.submap);
   Reference ref;
