@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 
 namespace rim {
@@ -44,35 +45,41 @@ void ForRanges(size_t n, WorkerPool* pool, Fn&& fn) {
             [&](int t) { fn(n * size_t(t) / size_t(tasks), n * size_t(t + 1) / size_t(tasks)); });
 }
 
-}  // namespace
+// The free-space walk of MarkFreeSpace, set up once per scan and run over ranges of rays.
+class FreeWalk {
+ public:
+  FreeWalk(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W, float band_m,
+           int max_rays, LocalMap* map)
+      : points_(points_W), origins_(origins_W), band_(band_m), lv_(map->level(0)) {
+    n_ = points_W.size();
+    if (max_rays <= 0 || n_ == 0 || !map->placed()) return;
+    s_ = map->geometry().leaf_m();
+    lo_ = map->min_m();
+    hi_ = map->max_m();
+    dims_ = lv_.dims;
+    axis_stride_[0] = int64_t(dims_.y()) * dims_.z();
+    axis_stride_[1] = dims_.z();
+    axis_stride_[2] = 1;
+    for (int a = 0; a < 3; ++a) wrap_[a] = dims_[a] * axis_stride_[a];
+    box_ = map->LatticeBox(0);
+    for (int a = 0; a < 3; ++a) span_[a] = uint32_t(box_.hi[a] - box_.lo[a]);
+    // Ray j of the walk is point floor(j · stride).
+    stride_ = std::max(1.0, double(n_) / max_rays);
+    rays_ = std::min(n_, size_t(std::ceil(double(n_) / stride_)));
+  }
+  size_t rays() const { return rays_; }
 
-void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
-                   float band_m, int max_rays, LocalMap* map, WorkerPool* pool) {
-  if (max_rays <= 0 || points_W.empty() || !map->placed()) return;
-  const double s = map->geometry().leaf_m();
-  const Vec3d lo = map->min_m(), hi = map->max_m();
-  LocalMap::Level& lv = map->level(0);
-  const Int3 dims = lv.dims;
-  const int64_t axis_stride[3] = {int64_t(dims.y()) * dims.z(), dims.z(), 1};
-  const int64_t wrap[3] = {dims.x() * axis_stride[0], dims.y() * axis_stride[1],
-                           dims.z() * axis_stride[2]};
-  const IntBox box = map->LatticeBox(0);
-  const uint32_t span[3] = {uint32_t(box.hi.x() - box.lo.x()), uint32_t(box.hi.y() - box.lo.y()),
-                            uint32_t(box.hi.z() - box.lo.z())};
-  const size_t n = points_W.size();
-  // Ray j of the walk is point floor(j · stride).
-  const double stride = std::max(1.0, double(n) / max_rays);
-  const size_t rays = std::min(n, size_t(std::ceil(double(n) / stride)));
-  ForRanges(rays, pool, [&](size_t j0, size_t j1) {
+  void Walk(size_t j0, size_t j1) const {
+    const double s = s_;
     for (size_t j = j0; j < j1; ++j) {
-      const size_t i = std::min(n - 1, size_t(double(j) * stride));
-      const Vec3d o = origins_W[i].cast<double>();
-      Vec3d d = points_W[i].cast<double>() - o;
+      const size_t i = std::min(n_ - 1, size_t(double(j) * stride_));
+      const Vec3d o = origins_[i].cast<double>();
+      Vec3d d = points_[i].cast<double>() - o;
       const double range = d.norm();
-      if (range <= band_m) continue;
+      if (range <= band_) continue;
       d /= range;
-      double t0 = 0, t1 = range - band_m;
-      if (!ClipToBox(o, d, lo, hi, &t0, &t1)) continue;
+      double t0 = 0, t1 = range - band_;
+      if (!ClipToBox(o, d, lo_, hi_, &t0, &t1)) continue;
       // Voxel walk (one step per voxel boundary crossed) from t0 to t1.
       const Vec3d p = o + t0 * d;
       Int3 g(int(std::floor(p.x() / s)), int(std::floor(p.y() / s)), int(std::floor(p.z() / s)));
@@ -98,15 +105,15 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
       Int3 ring;
       int64_t slot = 0;
       for (int a = 0; a < 3; ++a) {
-        ring[a] = PosMod(g[a], dims[a]);
-        slot = slot * dims[a] + ring[a];
+        ring[a] = PosMod(g[a], dims_[a]);
+        slot = slot * dims_[a] + ring[a];
       }
       double t = t0;
       while (t < t1) {
         // Rounding at the box faces can put the first or last voxel just outside.
-        if (uint32_t(g.x() - box.lo.x()) <= span[0] && uint32_t(g.y() - box.lo.y()) <= span[1] &&
-            uint32_t(g.z() - box.lo.z()) <= span[2])
-          SetFlagBits(&lv.flags(slot), LocalMap::kSeenFree | LocalMap::kHasData);
+        if (uint32_t(g.x() - box_.lo.x()) <= span_[0] &&
+            uint32_t(g.y() - box_.lo.y()) <= span_[1] && uint32_t(g.z() - box_.lo.z()) <= span_[2])
+          SetFlagBits(&lv_.flags(slot), LocalMap::kSeenFree | LocalMap::kHasData);
         // The axis whose boundary comes first, chosen without branches: it changes at random
         // from voxel to voxel, and a mispredicted branch cost more than the rest of the step.
         const bool y_first = t_max[1] < t_max[0];
@@ -116,50 +123,120 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
         t_max[a] += t_delta[a];
         g[a] += step[a];
         ring[a] += step[a];
-        slot += step[a] * axis_stride[a];
-        if (ring[a] == dims[a]) {
+        slot += step[a] * axis_stride_[a];
+        if (ring[a] == dims_[a]) {
           ring[a] = 0;
-          slot -= wrap[a];
+          slot -= wrap_[a];
         } else if (ring[a] < 0) {
-          ring[a] = dims[a] - 1;
-          slot += wrap[a];
+          ring[a] = dims_[a] - 1;
+          slot += wrap_[a];
         }
       }
     }
-  });
+  }
+
+ private:
+  const std::vector<Vec3f>& points_;
+  const std::vector<Vec3f>& origins_;
+  const float band_;
+  LocalMap::Level& lv_;
+  size_t n_ = 0, rays_ = 0;
+  double s_ = 0, stride_ = 1;
+  Vec3d lo_, hi_;
+  Int3 dims_;
+  int64_t axis_stride_[3] = {}, wrap_[3] = {};
+  IntBox box_;
+  uint32_t span_[3] = {};
+};
+
+// MarkSurfaceVoxels, set up once per scan and run over ranges of points. A point in the box is
+// at most one ring length past the box corner's ring position, so its ring position per axis is
+// one compare and subtract away: no modulo per point.
+class SurfaceMark {
+ public:
+  SurfaceMark(const std::vector<Vec3f>& points_W, LocalMap* map)
+      : points_(points_W), lv_(map->level(0)), placed_(map->placed()) {
+    if (!placed_) return;
+    inv_s_ = 1.0 / map->geometry().leaf_m();
+    box_ = map->LatticeBox(0);
+    dims_ = lv_.dims;
+    for (int a = 0; a < 3; ++a) {
+      lo_ring_[a] = PosMod(box_.lo[a], dims_[a]);
+      span_[a] = uint32_t(box_.hi[a] - box_.lo[a]);
+    }
+  }
+  size_t points() const { return placed_ ? points_.size() : 0; }
+
+  void Mark(size_t begin, size_t end) const {
+    for (size_t i = begin; i < end; ++i) {
+      const Vec3f& p = points_[i];
+      const Int3 g(int(std::floor(p.x() * inv_s_)), int(std::floor(p.y() * inv_s_)),
+                   int(std::floor(p.z() * inv_s_)));
+      uint32_t r[3];  // below the box: a huge unsigned value
+      for (int a = 0; a < 3; ++a) r[a] = uint32_t(g[a] - box_.lo[a]);
+      if (r[0] > span_[0] || r[1] > span_[1] || r[2] > span_[2]) continue;
+      int ring[3];
+      for (int a = 0; a < 3; ++a) {
+        ring[a] = lo_ring_[a] + int(r[a]);
+        if (ring[a] >= dims_[a]) ring[a] -= dims_[a];
+      }
+      const int64_t slot = (int64_t(ring[0]) * dims_.y() + ring[1]) * dims_.z() + ring[2];
+      SetFlagBits(&lv_.flags(slot), LocalMap::kObserved | LocalMap::kHasData);
+    }
+  }
+
+ private:
+  const std::vector<Vec3f>& points_;
+  LocalMap::Level& lv_;
+  const bool placed_;
+  double inv_s_ = 0;
+  IntBox box_;
+  Int3 dims_;
+  int lo_ring_[3] = {};
+  uint32_t span_[3] = {};
+};
+
+}  // namespace
+
+void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
+                   float band_m, int max_rays, LocalMap* map, WorkerPool* pool) {
+  const FreeWalk walk(points_W, origins_W, band_m, max_rays, map);
+  ForRanges(walk.rays(), pool, [&](size_t j0, size_t j1) { walk.Walk(j0, j1); });
 }
 
 void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map, WorkerPool* pool) {
-  if (!map->placed()) return;
-  const double inv_s = 1.0 / map->geometry().leaf_m();
-  LocalMap::Level& lv = map->level(0);
-  // A point in the box is at most one ring length past the box corner's ring position, so its
-  // ring position per axis is one compare and subtract away: no modulo per point.
-  const IntBox box = map->LatticeBox(0);
-  const Int3 dims = lv.dims;
-  int lo_ring[3];
-  uint32_t span[3];
-  for (int a = 0; a < 3; ++a) {
-    lo_ring[a] = PosMod(box.lo[a], dims[a]);
-    span[a] = uint32_t(box.hi[a] - box.lo[a]);
-  }
-  ForRanges(points_W.size(), pool, [&](size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) {
-      const Vec3f& p = points_W[i];
-      const Int3 g(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
-                   int(std::floor(p.z() * inv_s)));
-      uint32_t r[3];  // below the box: a huge unsigned value
-      for (int a = 0; a < 3; ++a) r[a] = uint32_t(g[a] - box.lo[a]);
-      if (r[0] > span[0] || r[1] > span[1] || r[2] > span[2]) continue;
-      int ring[3];
-      for (int a = 0; a < 3; ++a) {
-        ring[a] = lo_ring[a] + int(r[a]);
-        if (ring[a] >= dims[a]) ring[a] -= dims[a];
-      }
-      const int64_t slot = (int64_t(ring[0]) * dims.y() + ring[1]) * dims.z() + ring[2];
-      SetFlagBits(&lv.flags(slot), LocalMap::kObserved | LocalMap::kHasData);
+  const SurfaceMark mark(points_W, map);
+  ForRanges(mark.points(), pool, [&](size_t begin, size_t end) { mark.Mark(begin, end); });
+}
+
+void MarkScan(const std::vector<Vec3f>& inside_p, const std::vector<Vec3f>& inside_o,
+              const std::vector<Vec3f>& outside_p, const std::vector<Vec3f>& outside_o,
+              float band_m, int inside_rays, int outside_rays, LocalMap* map, WorkerPool* pool,
+              const std::function<void()>& also) {
+  const SurfaceMark surface(inside_p, map);
+  const FreeWalk inside(inside_p, inside_o, band_m, inside_rays, map);
+  const FreeWalk outside(outside_p, outside_o, band_m, outside_rays, map);
+  // Task 0 is `also`, so that one thread starts it while the other starts marking; then a few
+  // pieces per thread of each kind, the long inside rays first.
+  const int pieces = pool ? 4 * pool->threads() : 1;
+  auto run = [&](int t) {
+    if (t == 0) {
+      if (also) also();
+      return;
     }
-  });
+    const int kind = (t - 1) / pieces, k = (t - 1) % pieces;
+    auto range = [&](size_t n, auto&& fn) {
+      fn(n * size_t(k) / size_t(pieces), n * size_t(k + 1) / size_t(pieces));
+    };
+    if (kind == 0) range(inside.rays(), [&](size_t a, size_t b) { inside.Walk(a, b); });
+    if (kind == 1) range(outside.rays(), [&](size_t a, size_t b) { outside.Walk(a, b); });
+    if (kind == 2) range(surface.points(), [&](size_t a, size_t b) { surface.Mark(a, b); });
+  };
+  if (pool && pool->threads() > 1) {
+    pool->Run(1 + 3 * pieces, run);
+  } else {
+    for (int t = 0; t < 1 + 3 * pieces; ++t) run(t);
+  }
 }
 
 }  // namespace rim

@@ -5,6 +5,7 @@
 // through.
 #pragma once
 
+#include <functional>
 #include <vector>
 
 #include "rim/local_map.h"
@@ -26,5 +27,14 @@ void MarkFreeSpace(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>&
 // sample has landed in it yet. With a pool, the points are shared among its threads.
 void MarkSurfaceVoxels(const std::vector<Vec3f>& points_W, LocalMap* map,
                        WorkerPool* pool = nullptr);
+
+// One scan's marking in one pass over the pool: MarkSurfaceVoxels of the inside endpoints,
+// MarkFreeSpace of the inside rays (at most `inside_rays`) and of the rays ending outside the box
+// (at most `outside_rays`), with `also` run as one more task beside them (the mapper updates its
+// point buffer there, which marking does not touch). The marks are those of the three calls.
+void MarkScan(const std::vector<Vec3f>& inside_p, const std::vector<Vec3f>& inside_o,
+              const std::vector<Vec3f>& outside_p, const std::vector<Vec3f>& outside_o,
+              float band_m, int inside_rays, int outside_rays, LocalMap* map, WorkerPool* pool,
+              const std::function<void()>& also = nullptr);
 
 }  // namespace rim

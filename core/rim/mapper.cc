@@ -124,16 +124,15 @@ void Mapper::Preprocess(const PosedScan& scan) {
       outside.origins_W.push_back(o_W);
     }
   }
-  // On the training threads, idle until the first iteration.
-  WorkerPool* pool = &trainer_->pool();
-  MarkSurfaceVoxels(inside_p, local_map_.get(), pool);
-  MarkFreeSpace(inside_p, inside_o, config_.sampler.observed_band_m,
-                config_.sampler.free_space_rays, local_map_.get(), pool);
-  // Rays ending outside the box crossed it as free space up to the box face.
-  MarkFreeSpace(outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
-                config_.sampler.free_space_rays / 4, local_map_.get(), pool);
-  buffer_->AddFrame(inside_p, inside_o);
-  buffer_->RemoveOutside(lo, hi);
+  // On the training threads, idle until the first iteration. Rays ending outside the box crossed
+  // it as free space up to the box face. The point buffer is updated as one more task of the
+  // same pass: it reads the inside points only, and marking does not touch the buffer.
+  MarkScan(inside_p, inside_o, outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
+           config_.sampler.free_space_rays, config_.sampler.free_space_rays / 4, local_map_.get(),
+           &trainer_->pool(), [&] {
+             buffer_->AddFrame(inside_p, inside_o);
+             buffer_->RemoveOutside(lo, hi);
+           });
   // Outlier removal needs a decoder that already means something: not before it is frozen.
   if (config_.buffer.outlier_removal && frames_ >= config_.decoder.freeze_after_frames &&
       frames_ % config_.buffer.outlier_period_frames == 0) {

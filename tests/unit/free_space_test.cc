@@ -3,6 +3,7 @@
 #include "rim/free_space.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -115,6 +116,36 @@ TEST_F(FreeSpaceTest, MarksTheSameWithAPool) {
     EXPECT_EQ(pooled.level(0).FlagCopy(), alone) << threads << " threads";
   }
   EXPECT_GT(CountSeenFree(), 2000);
+}
+
+TEST_F(FreeSpaceTest, MarkScanMarksWhatTheThreeCallsMarkAndRunsItsTaskOnce) {
+  std::mt19937_64 rng(21);
+  std::uniform_real_distribution<float> in(0.05f, 3.95f), in_z(0.05f, 2.35f), out(-3.f, 7.f);
+  std::vector<Vec3f> inside_p, inside_o, outside_p, outside_o;
+  for (int i = 0; i < 3000; ++i) {
+    inside_o.push_back(Vec3f(in(rng), in(rng), in_z(rng)));
+    inside_p.push_back(Vec3f(in(rng), in(rng), in_z(rng)));
+    outside_o.push_back(Vec3f(in(rng), in(rng), in_z(rng)));
+    outside_p.push_back(Vec3f(out(rng), out(rng), 1.f));
+  }
+  MarkSurfaceVoxels(inside_p, &map_);
+  MarkFreeSpace(inside_p, inside_o, 0.15f, 1000, &map_);
+  MarkFreeSpace(outside_p, outside_o, 0.15f, 250, &map_);
+  const std::vector<uint8_t> three = map_.level(0).FlagCopy();
+  for (const int threads : {1, 2, 3}) {
+    LocalMap scanned(geometry_);
+    scanned.MoveTo(Int3::Zero(), nullptr, nullptr);
+    WorkerPool pool(threads);
+    std::atomic<int> also{0};
+    MarkScan(inside_p, inside_o, outside_p, outside_o, 0.15f, 1000, 250, &scanned, &pool,
+             [&] { also.fetch_add(1); });
+    EXPECT_EQ(scanned.level(0).FlagCopy(), three) << threads << " threads";
+    EXPECT_EQ(also.load(), 1) << threads << " threads";
+  }
+  LocalMap serial(geometry_);
+  serial.MoveTo(Int3::Zero(), nullptr, nullptr);
+  MarkScan(inside_p, inside_o, outside_p, outside_o, 0.15f, 1000, 250, &serial, nullptr);
+  EXPECT_EQ(serial.level(0).FlagCopy(), three) << "no pool, no task";
 }
 
 // The plain walk: the same voxel sequence, each voxel's slot from LocalMap::Slot (a modulo per
