@@ -145,8 +145,8 @@ absl::Status MapperConfig::Validate() const {
   if (!(train.learning_rate > 0.f)) return Bad("train.learning_rate", "must be > 0");
   if (!(train.sigma_m > 0.f)) return Bad("train.sigma_m", "must be > 0");
   if (!(train.eikonal_weight >= 0.f)) return Bad("train.eikonal_weight", "must be >= 0");
-  if (train.step != "fast" && train.step != "libtorch") {
-    return Bad("train.step", "must be \"fast\" or \"libtorch\"");
+  if (train.step != "fast" && train.step != "libtorch" && train.step != "reference") {
+    return Bad("train.step", "must be \"fast\", \"libtorch\" or \"reference\"");
   }
   if (train.threads < 1 || train.threads > 64) return Bad("train.threads", "must be in [1, 64]");
   if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f))

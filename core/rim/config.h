@@ -43,7 +43,10 @@ struct TrainConfig {
   float adam_beta2 = 0.999f;
   float adam_eps = 1e-15f;
   // The decoder part of a training step: "fast" (hand-written Eigen products, mlp_step.h) or
-  // "libtorch" (autograd, train_step.h): the reference the fast one is tested against.
+  // "libtorch" (autograd, train_step.h): the reference the fast one is tested against. Both
+  // update the features by lazy Adam on the touched rows. "reference" runs the whole iteration
+  // as ReferenceTrainer (train_step.h): libtorch ops over the dense grids and dense Adam over
+  // every row, ~25x slower; for measuring the fast path's reconstruction against it.
   std::string step = "fast";
   // Threads of one session's training iterations (encode, gradient scatter, Adam). The server
   // runs --train-slots sessions at once, each with this many threads.

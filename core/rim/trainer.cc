@@ -35,7 +35,10 @@ Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
       sampler_(config.sampler, config.train.sigma_m, config.sampler.seed),
       bias_(AdamHyper{config.train.learning_rate, config.train.adam_beta1, config.train.adam_beta2,
                       config.train.adam_eps}),
-      pool_(config.train.threads) {}
+      pool_(config.train.threads) {
+  if (config.train.step == "reference")
+    reference_ = std::make_unique<ReferenceTrainer>(config, map, decoder);
+}
 
 void Trainer::AddEikonalProbes() {
   const float h = float(0.5 * map_->geometry().leaf_m());
@@ -88,6 +91,20 @@ absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming*
   features_.resize(size_t(rows) * map_->geometry().encoding_dim());
   EncodeLocal(*map_, xyz_.data(), rows, &encoding_, features_.data(), &pool_);
   double t2 = Now();
+  if (reference_) {
+    // The whole iteration through the dense reference (labelled samples only: it has no eikonal
+    // term); the encode above serves the observed marking, as in the fast path.
+    auto loss = reference_->Iterate(batch_.xyz.data(), batch_.labels.data(), int(batch_.size()),
+                                    train_decoder);
+    if (!loss.ok()) return loss.status();
+    MarkObserved();
+    if (timing) {
+      timing->sample_s += t1 - t0;
+      timing->encode_s += t2 - t1;
+      timing->step_s += Now() - t2;
+    }
+    return *loss;
+  }
 
   TrainStepInput in;
   in.features = features_.data();

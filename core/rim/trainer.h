@@ -3,6 +3,7 @@
 #pragma once
 
 #include <atomic>
+#include <memory>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -66,6 +67,7 @@ class Trainer {
   AdamBiasTable bias_;
   std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: which levels are scattered
   bool grad_ready_ = false;
+  std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };
 
