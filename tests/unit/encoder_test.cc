@@ -112,6 +112,23 @@ class EncoderTest : public ::testing::Test {
  protected:
   EncoderTest() : config_(SmallConfig()), geo_(config_.grid), map_(geo_) {}
 
+  // Encodes the points of `xyz` and scatters an upstream gradient drawn from Uniform(−1, 1)
+  // (encoding_dim values per point, returned) as a new iteration's sparse feature gradient.
+  std::vector<float> EncodeAndScatter(const std::vector<float>& xyz, std::mt19937* rng,
+                                      LocalEncoding* enc, std::vector<float>* features,
+                                      SparseGradient* sg) {
+    const int n = int(xyz.size() / 3);
+    std::uniform_real_distribution<float> u(-1.f, 1.f);
+    std::vector<float> upstream(size_t(n) * geo_.encoding_dim());
+    for (float& g : upstream) g = u(*rng);
+    features->assign(size_t(n) * geo_.encoding_dim(), 0.f);
+    EncodeLocal(map_, xyz.data(), n, enc, features->data());
+    sg->Reset(map_);
+    sg->BeginIteration(&map_);
+    sg->Scatter(&map_, *enc, upstream.data());
+    return upstream;
+  }
+
   MapperConfig config_;
   MapGeometry geo_;
   LocalMap map_;
@@ -178,17 +195,10 @@ TEST_F(EncoderTest, SparseGradientMatchesReferenceAndFiniteDifferences) {
   const int n = 20, L = geo_.levels(), D = geo_.feature_dim(), F = geo_.encoding_dim();
   const std::vector<float> xyz = RandomPointsInBox(map_, n, 5);
   std::mt19937 rng(6);
-  std::uniform_real_distribution<float> u(-1.f, 1.f);
-  std::vector<float> upstream(size_t(n) * F);
-  for (float& g : upstream) g = u(rng);
-
   LocalEncoding enc;
-  std::vector<float> features(size_t(n) * F);
-  EncodeLocal(map_, xyz.data(), n, &enc, features.data());
+  std::vector<float> features;
   SparseGradient sg;
-  sg.Reset(map_);
-  sg.BeginIteration(&map_);
-  sg.Scatter(&map_, enc, upstream.data());
+  const std::vector<float> upstream = EncodeAndScatter(xyz, &rng, &enc, &features, &sg);
 
   // d/d feature[l][slot][d] of Σ upstream · features = Σ_{points, corners at slot} w · upstream.
   for (int l = 0; l < L; ++l) {
@@ -286,15 +296,10 @@ TEST_F(EncoderTest, TouchedRowsUpdateIsThePlainAdamRowBitForBit) {
     }
   }
   const std::vector<float> xyz = RandomPointsInBox(map_, n, 14);
-  std::vector<float> upstream(size_t(n) * F);
-  for (float& g : upstream) g = u(rng);
   LocalEncoding enc;
-  std::vector<float> features(size_t(n) * F);
-  EncodeLocal(map_, xyz.data(), n, &enc, features.data());
+  std::vector<float> features;
   SparseGradient sg;
-  sg.Reset(map_);
-  sg.BeginIteration(&map_);
-  sg.Scatter(&map_, enc, upstream.data());
+  EncodeAndScatter(xyz, &rng, &enc, &features, &sg);
 
   const AdamHyper h{1e-2f, 0.9f, 0.999f, 1e-15f};
   const AdamBiasTable bias(h);
