@@ -90,18 +90,31 @@ absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const Train
 }
 
 struct ReferenceTrainer::State {
-  std::vector<torch::Tensor> m, v;  // dense Adam moments per level, like the grids
+  // Dense Adam moments per level, like the grids (or views of the local map's moment records:
+  // m and v of a slot side by side).
+  std::vector<torch::Tensor> m, v;
   std::vector<float> decoder_m, decoder_v;
   int64_t step = 0;  // one global step count, as torch::optim::Adam keeps per parameter
   LocalEncoding encoding;
 };
 
-ReferenceTrainer::ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
+ReferenceTrainer::ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder,
+                                   bool moments_in_map)
     : config_(config), map_(map), decoder_(decoder), state_(std::make_unique<State>()) {
+  const int64_t D = map->geometry().feature_dim();
   for (int l = 0; l < map->geometry().levels(); ++l) {
-    const int64_t rows = map->level(l).slots();
-    state_->m.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
-    state_->v.push_back(torch::zeros({rows, map->geometry().feature_dim()}));
+    LocalMap::Level& lv = map->level(l);
+    const int64_t rows = lv.slots();
+    if (!moments_in_map) {
+      state_->m.push_back(torch::zeros({rows, D}));
+      state_->v.push_back(torch::zeros({rows, D}));
+      continue;
+    }
+    const int64_t record = rows > 1 ? int64_t(lv.adam_m(1) - lv.adam_m(0)) : 2 * D;
+    const torch::Tensor moments = torch::from_blob(lv.adam_m(0), {rows, record},
+                                                   torch::TensorOptions().dtype(torch::kFloat32));
+    state_->m.push_back(moments.narrow(1, 0, D));
+    state_->v.push_back(moments.narrow(1, lv.adam_v(0) - lv.adam_m(0), D));
   }
   state_->decoder_m.assign(decoder->params().size(), 0.f);
   state_->decoder_v.assign(decoder->params().size(), 0.f);

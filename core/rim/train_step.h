@@ -48,7 +48,12 @@ absl::StatusOr<TrainStepOutput> RunTrainStep(const Decoder& decoder, const Train
 // ratio. Without the eikonal term (the fast path's probes are not built here).
 class ReferenceTrainer {
  public:
-  ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder);
+  // The dense moments start at zero in tensors of their own; with `moments_in_map` they are the
+  // local map's own moment records instead (as views, starting from what they hold), so that a
+  // slot the box recycles starts from zero moments as in the fast path (a whole mapping session,
+  // train.step = reference). A map trained that way must not be trained by a Trainer too.
+  ReferenceTrainer(const MapperConfig& config, LocalMap* map, Decoder* decoder,
+                   bool moments_in_map = false);
   ~ReferenceTrainer();
   // One iteration on n samples (xyz: 3n floats inside the box; labels: n); updates the map's
   // features and, when train_decoder, the decoder's parameters in place. Returns the loss.

@@ -37,7 +37,7 @@ Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
                       config.train.adam_eps}),
       pool_(config.train.threads) {
   if (config.train.step == "reference")
-    reference_ = std::make_unique<ReferenceTrainer>(config, map, decoder);
+    reference_ = std::make_unique<ReferenceTrainer>(config, map, decoder, /*moments_in_map=*/true);
 }
 
 void Trainer::AddEikonalProbes() {
@@ -97,6 +97,18 @@ absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming*
     auto loss = reference_->Iterate(batch_.xyz.data(), batch_.labels.data(), int(batch_.size()),
                                     train_decoder);
     if (!loss.ok()) return loss.status();
+    // A slot holds data (is saved when it leaves, checkpointed) when flagged or when it has a step
+    // count; the reference keeps one global count, so give every slot it trained one here. The
+    // coarse levels have no flags: without this their trained rows were dropped on leaving.
+    const int L = map_->geometry().levels();
+    for (size_t i = 0; i < batch_.size(); ++i)
+      for (int l = 0; l < L; ++l) {
+        LocalMap::Level& lv = map_->level(l);
+        for (int c = 0; c < 8; ++c) {
+          int32_t& steps = lv.adam_steps(encoding_.slots[(i * size_t(L) + size_t(l)) * 8 + c]);
+          if (steps == 0) steps = 1;
+        }
+      }
     MarkObserved();
     if (timing) {
       timing->sample_s += t1 - t0;

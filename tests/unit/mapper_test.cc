@@ -367,6 +367,28 @@ TEST(MapperTrainingPathTest, DenseReferenceStepMapsLikeTheFastOne) {
   EXPECT_NE(fast.first, ref.first) << "the reference path must have run";
 }
 
+// Rows the reference trains hold data on every level (they are saved when they leave the box):
+// it keeps no per-row step counts of its own, and the coarse levels carry no flags.
+TEST(MapperTrainingPathTest, DenseReferenceStepKeepsItsTrainedRowsOnEveryLevel) {
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig({"train.step=reference"}));
+  ASSERT_TRUE(mapper.ok());
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 1)).ok());
+  const LocalMap& map = (*mapper)->local_map();
+  for (int l = 0; l < map.geometry().levels(); ++l) {
+    const LocalMap::Level& lv = map.level(l);
+    int64_t trained = 0, kept = 0;
+    for (int64_t s = 0; s < lv.slots(); ++s) {
+      bool moved = false;
+      for (int d = 0; d < lv.feature_dim(); ++d) moved |= lv.features(s)[d] != 0.f;
+      trained += moved;
+      kept += moved && lv.has_data(s);
+    }
+    EXPECT_GT(trained, 0) << "level " << l;
+    EXPECT_EQ(kept, trained) << "level " << l << ": trained rows that would not be saved";
+  }
+}
+
 TEST(MapperTrainingPathTest, UnknownStepIsRejected) {
   auto config = MakePreset("maicity");
   const absl::Status s = ApplyOverrides({"train.step=gpu"}, &*config);
