@@ -33,7 +33,7 @@ RUN apt-get update \
       libtorch1.13 libssl3 \
       libgrpc++1.51 libgrpc29 libprotobuf32 libabsl20220623 \
       libprometheus-cpp-core1.0 libprometheus-cpp-pull1.0 \
-      libdraco7 libpng16-16 \
+      libdraco7 libpng16-16 liblzf1 \
  && rm -rf /var/lib/apt/lists/*
 COPY --from=build /out/bin/ /usr/local/bin/
 # Fail the image build, not the first container start, when a library is missing.

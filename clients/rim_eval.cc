@@ -18,7 +18,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "rim/eval/mesh_eval.h"
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 
 namespace {
 

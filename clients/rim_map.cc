@@ -19,14 +19,14 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
-#include "rim/binary_io.h"
-#include "rim/config.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/status_macros.h"
+#include "rim/base/version.h"
+#include "rim/config/config.h"
 #include "rim/io/dataset.h"
+#include "rim/io/mesh_io.h"
+#include "rim/map/submap_store.h"
 #include "rim/mapper.h"
-#include "rim/mesh_io.h"
-#include "rim/status_macros.h"
-#include "rim/submap_store.h"
-#include "rim/version.h"
 
 namespace rim {
 namespace {

@@ -9,6 +9,7 @@ PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config git ca-certificates
   # core
   libtorch-dev libeigen3-dev libabsl-dev zlib1g-dev libpng-dev
+  nlohmann-json3-dev liblzf-dev libnanoflann-dev
   # service
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev libdraco-dev
@@ -16,8 +17,9 @@ PACKAGES=(
   libssl-dev
   # tests and benchmarks; clang and its libFuzzer runtime for tests/fuzz (RIM_FUZZ=ON)
   libgtest-dev libgmock-dev libbenchmark-dev prometheus python3-yaml clang libclang-rt-14-dev
-  # python client
-  python3 python3-numpy python3-grpcio python3-protobuf
+  # python client: installed with pip into a venv, offline (setuptools, wheel from Debian)
+  python3 python3-numpy python3-grpcio python3-protobuf python3-venv python3-pip
+  python3-setuptools python3-wheel
 )
 
 missing=()

@@ -23,7 +23,7 @@
 #include <thread>
 
 #include "absl/cleanup/cleanup.h"
-#include "rim/version.h"
+#include "rim/base/version.h"
 #include "server/compute_scheduler.h"
 #include "server/metrics.h"
 #include "server/security.h"

@@ -15,7 +15,7 @@
 #include "draco/core/decoder_buffer.h"
 #include "draco/core/encoder_buffer.h"
 #include "draco/mesh/mesh.h"
-#include "rim/status_macros.h"
+#include "rim/base/status_macros.h"
 
 namespace rim::server {
 namespace {

@@ -19,7 +19,7 @@
 #include <string_view>
 
 #include "absl/status/statusor.h"
-#include "rim/mesh.h"
+#include "rim/base/mesh.h"
 
 namespace rim::server {
 

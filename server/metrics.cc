@@ -16,7 +16,7 @@
 #include <exception>
 
 #include "absl/strings/str_cat.h"
-#include "rim/version.h"
+#include "rim/base/version.h"
 #include "server/session_manager.h"
 
 namespace rim::server {

@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 #include "rim/v1/rim.pb.h"
 
 namespace rim::server {

@@ -4,8 +4,8 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "rim/binary_io.h"
-#include "rim/status_macros.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/status_macros.h"
 
 namespace rim::server {
 namespace {

@@ -1,6 +1,6 @@
 // Byte encoding of one accepted scan, as the write-ahead log stores it (DESIGN.md §5.3).
 //
-// Layout, all little-endian (rim/binary_io.h):
+// Layout, all little-endian (rim/base/binary_io.h):
 //   u64 client sequence | f64 timestamp_s | 16 x f64 T_world_sensor (4x4, column-major) |
 //   u64 point count n | n x (f32 x, y, z) | u64 origin count m | m x (f32 x, y, z)
 // The pose is stored as the full matrix rather than translation + quaternion so that a replayed
@@ -13,7 +13,7 @@
 #include <string_view>
 
 #include "absl/status/status.h"
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 
 namespace rim::server {
 

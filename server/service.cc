@@ -5,8 +5,8 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "rim/config.h"
-#include "rim/version.h"
+#include "rim/base/version.h"
+#include "rim/config/config.h"
 #include "server/scan_convert.h"
 #include "server/status_mapping.h"
 

@@ -7,7 +7,7 @@
 #include <optional>
 
 #include "absl/strings/str_cat.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 
 namespace rim::server {
 namespace {

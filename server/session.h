@@ -15,9 +15,9 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "rim/config.h"
+#include "rim/base/scan.h"
+#include "rim/config/config.h"
 #include "rim/mapper.h"
-#include "rim/scan.h"
 #include "server/compute_scheduler.h"
 #include "server/session_events.h"
 #include "server/tile_cache.h"

@@ -4,10 +4,10 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "rim/binary_io.h"
-#include "rim/config.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/status_macros.h"
+#include "rim/config/config.h"
 #include "rim/mapper.h"
-#include "rim/status_macros.h"
 
 namespace rim::server {
 

@@ -10,8 +10,8 @@
 #include <unordered_map>
 
 #include "absl/status/statusor.h"
+#include "rim/base/types.h"
 #include "rim/mapper.h"
-#include "rim/types.h"
 
 namespace rim::server {
 

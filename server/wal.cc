@@ -13,8 +13,8 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
-#include "rim/binary_io.h"
-#include "rim/status_macros.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/status_macros.h"
 #include "server/scan_record.h"
 #include "server/wal_record.h"
 

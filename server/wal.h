@@ -29,7 +29,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 
 namespace rim::server {
 

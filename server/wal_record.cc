@@ -4,7 +4,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 
 namespace rim::server {
 namespace {

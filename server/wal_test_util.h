@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/status_macros.h"
+#include "rim/base/status_macros.h"
 #include "server/wal.h"
 
 namespace rim::server::wal_testing {

@@ -4,9 +4,9 @@
 #include <cmath>
 #include <vector>
 
-#include "rim/config.h"
+#include "rim/base/status_macros.h"
+#include "rim/config/config.h"
 #include "rim/mapper.h"
-#include "rim/status_macros.h"
 
 namespace rim::server {
 namespace {

@@ -8,8 +8,8 @@
 #include <thread>
 
 #include "absl/strings/str_format.h"
-#include "rim/binary_io.h"
-#include "rim/mesh_io.h"
+#include "rim/base/binary_io.h"
+#include "rim/io/mesh_io.h"
 #include "rimctl/commands.h"
 
 namespace rim::rimctl {

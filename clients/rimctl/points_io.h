@@ -6,7 +6,7 @@
 
 #include "absl/status/statusor.h"
 #include "client/client.h"
-#include "rim/types.h"
+#include "rim/base/types.h"
 
 namespace rim::rimctl {
 

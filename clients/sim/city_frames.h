@@ -7,7 +7,7 @@
 #include <cstdint>
 #include <memory>
 
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 
 namespace rim::sim {
 

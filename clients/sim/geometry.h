@@ -40,6 +40,10 @@ struct Box {
 Box MakeBox(const Vec3& center, const Vec3& half, double yaw);
 // A box given by its z range and its footprint (centre, half extents in x and y, yaw).
 Box MakeBoxZ(const Vec2& center, const Vec2& half_xy, double yaw, double z_min, double z_max);
+// Rotates a vector of the box's own xy frame into the world frame.
+inline Vec2 BoxToWorld(const Box& b, double x, double y) {
+  return Vec2(b.cos_yaw * x - b.sin_yaw * y, b.sin_yaw * x + b.cos_yaw * y);
+}
 
 // Vertical cylinder with flat caps.
 struct Cylinder {

@@ -5,7 +5,7 @@
 #include <limits>
 #include <utility>
 
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 
 namespace rim::sim {
 namespace {

@@ -6,7 +6,7 @@
 #include <functional>
 #include <vector>
 
-#include "rim/mesh.h"
+#include "rim/base/mesh.h"
 #include "sim/geometry.h"
 
 namespace rim::sim {

@@ -8,18 +8,18 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "rim/decoder.h"
-#include "rim/encoder.h"
-#include "rim/free_space.h"
-#include "rim/local_map.h"
-#include "rim/mesher.h"
-#include "rim/outlier_filter.h"
-#include "rim/point_buffer.h"
-#include "rim/sampler.h"
-#include "rim/slab_saver.h"
-#include "rim/status_macros.h"
-#include "rim/submap_store.h"
-#include "rim/trainer.h"
+#include "rim/base/status_macros.h"
+#include "rim/map/local_map.h"
+#include "rim/map/slab_saver.h"
+#include "rim/map/submap_store.h"
+#include "rim/mesh/mesher.h"
+#include "rim/model/decoder.h"
+#include "rim/model/encoder.h"
+#include "rim/train/free_space.h"
+#include "rim/train/outlier_filter.h"
+#include "rim/train/point_buffer.h"
+#include "rim/train/sampler.h"
+#include "rim/train/trainer.h"
 
 namespace rim {
 namespace {

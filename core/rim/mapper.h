@@ -14,10 +14,10 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "rim/config.h"
-#include "rim/mesh.h"
-#include "rim/scan.h"
-#include "rim/types.h"
+#include "rim/base/mesh.h"
+#include "rim/base/scan.h"
+#include "rim/base/types.h"
+#include "rim/config/config.h"
 
 namespace rim {
 

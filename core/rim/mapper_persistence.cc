@@ -11,15 +11,15 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "rim/binary_io.h"
-#include "rim/decoder.h"
-#include "rim/local_map.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/status_macros.h"
+#include "rim/map/local_map.h"
+#include "rim/map/slab_saver.h"
+#include "rim/map/submap_store.h"
 #include "rim/mapper.h"
-#include "rim/point_buffer.h"
-#include "rim/slab_saver.h"
-#include "rim/status_macros.h"
-#include "rim/submap_store.h"
-#include "rim/trainer.h"
+#include "rim/model/decoder.h"
+#include "rim/train/point_buffer.h"
+#include "rim/train/trainer.h"
 
 namespace rim {
 namespace {

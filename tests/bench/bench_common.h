@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "rim/base/scan.h"
 #include "rim/mapper.h"
-#include "rim/scan.h"
 
 namespace rim::bench {
 

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "bench/bench_common.h"
-#include "rim/version.h"
+#include "rim/base/version.h"
 
 namespace {
 

@@ -22,7 +22,7 @@
 
 #include "bench/bench_common.h"
 #include "bench/training_fixture.h"
-#include "rim/train_step.h"
+#include "rim/train/train_step.h"
 
 namespace rim::bench {
 namespace {

@@ -3,7 +3,7 @@
 #include <algorithm>
 
 #include "bench/bench_common.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 
 namespace rim::bench {
 namespace {

@@ -12,16 +12,16 @@
 #include <string>
 #include <vector>
 
-#include "rim/config.h"
-#include "rim/decoder.h"
-#include "rim/encoder.h"
-#include "rim/local_map.h"
-#include "rim/map_geometry.h"
-#include "rim/point_buffer.h"
-#include "rim/sampler.h"
-#include "rim/scan.h"
-#include "rim/train_step.h"
-#include "rim/trainer.h"
+#include "rim/base/scan.h"
+#include "rim/config/config.h"
+#include "rim/map/local_map.h"
+#include "rim/map/map_geometry.h"
+#include "rim/model/decoder.h"
+#include "rim/model/encoder.h"
+#include "rim/train/point_buffer.h"
+#include "rim/train/sampler.h"
+#include "rim/train/train_step.h"
+#include "rim/train/trainer.h"
 
 namespace rim::bench {
 

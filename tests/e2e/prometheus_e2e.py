@@ -7,7 +7,7 @@ config generated here (scraping that port every second), drives the server with 
 then asks Prometheus's HTTP API for the series and checks their values against what was done.
 Finally every family listed in docs/metrics.md must exist in Prometheus.
 
-Usage: prometheus_e2e.py RIM_SERVER_BIN   (PYTHONPATH: clients/python and the generated stubs)
+Usage: prometheus_e2e.py RIM_SERVER_BIN   (with a Python that has rim_client installed)
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@
 #include <filesystem>
 
 #include "fuzz_session.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 
 namespace {
 

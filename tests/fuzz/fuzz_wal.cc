@@ -15,7 +15,7 @@
 #include <iterator>
 
 #include "fuzz_session.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 #include "server/wal_record.h"
 
 namespace {

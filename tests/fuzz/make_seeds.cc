@@ -8,7 +8,7 @@
 #include <iterator>
 
 #include "fuzz_session.h"
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 #include "rim/io/kitti.h"
 #include "rim/io/lzf.h"
 #include "rim/io/pcd.h"
@@ -87,11 +87,11 @@ void ParserSeeds(const std::string& tmp) {
   Check(WritePngRgb8(tmp + "/c.png", 5, 4, rgb.data()));
   Seed("png_depth", "rgb8", ReadAll(tmp + "/c.png"));
 
-  Seed("json_lite", "cam_params",
+  Seed("json", "cam_params",
        "{\"camera\": {\"w\": 1200, \"h\": 680, \"fx\": 600.0, \"fy\": 600.0, \"cx\": 599.5,"
        " \"cy\": 339.5, \"scale\": 6553.5}}");
   Seed(
-      "json_lite", "values",
+      "json", "values",
       "{\"x\": [1, -2e3, true, false, null, \"a\\n\\u00e9\\ud83d\\ude00\"], \"o\": {\"k\": [[]]}}");
 
   std::string text;

@@ -9,11 +9,11 @@
 #include <random>
 #include <set>
 
+#include "rim/io/mesh_io.h"
+#include "rim/map/submap_store.h"
 #include "rim/mapper.h"
-#include "rim/mesh_io.h"
-#include "rim/outlier_filter.h"
-#include "rim/point_buffer.h"
-#include "rim/submap_store.h"
+#include "rim/train/outlier_filter.h"
+#include "rim/train/point_buffer.h"
 #include "support/analytic_scene.h"
 
 namespace rim {

@@ -18,7 +18,7 @@
 #include "client/tiles.h"
 #include "rim/eval/mesh_eval.h"
 #include "rim/io/dataset.h"
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 #include "support/server_process.h"
 #include "support/temp_dir.h"
 

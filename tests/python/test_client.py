@@ -8,7 +8,7 @@ SDF at the ground, above it and its gradient, chunked queries through StreamQuer
 tiles, watches, the error codes, and the two examples (planner.py, dashboard.py) run as
 processes. Stops the server with SIGTERM and expects exit status 0.
 
-Needs rim_client and the generated stubs on PYTHONPATH (tests/CMakeLists.txt sets both).
+Runs with a Python that has rim_client installed: the build's venv (tests/CMakeLists.txt).
 """
 
 from __future__ import annotations

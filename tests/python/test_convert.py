@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Unit tests of the Python client's encoding: poses (matrix <-> quaternion), packed points,
 regions, answer merging and per-call metadata. No server needed; the generated stubs are (they
-define the messages), so PYTHONPATH must hold rim_client and BUILD_DIR/clients/python/gen."""
+define the messages), so it runs with a Python that has rim_client installed (the build's venv)."""
 
 from __future__ import annotations
 

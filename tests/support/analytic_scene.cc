@@ -7,6 +7,8 @@
 #include <random>
 #include <utility>
 
+#include "rim/eval/nearest_neighbors.h"
+
 namespace rim::testing_support {
 namespace {
 
@@ -251,66 +253,6 @@ AnalyticScene::SurfacePoint DrawFromPatch(const AnalyticScene& scene, const Patc
   }
   return sp;
 }
-
-// Exact nearest-neighbour distances over a fixed point set. A k-d tree rather than a uniform grid
-// because completeness distances are unbounded (a mesh can miss a whole object), and a grid's
-// ring search degrades badly far from the data.
-class KdTree {
- public:
-  explicit KdTree(std::vector<Eigen::Vector3f> points)
-      : points_(std::move(points)), axis_(points_.size(), 0) {
-    Build(0, points_.size());
-  }
-
-  float NearestDistance(const Eigen::Vector3f& q) const {
-    float best = kInf;
-    Search(q, 0, points_.size(), &best);
-    return std::sqrt(best);
-  }
-
- private:
-  static constexpr size_t kLeafSize = 8;
-
-  void Build(size_t lo, size_t hi) {
-    if (hi - lo <= kLeafSize) return;
-    Eigen::Vector3f bmin = points_[lo], bmax = points_[lo];
-    for (size_t i = lo + 1; i < hi; ++i) {
-      bmin = bmin.cwiseMin(points_[i]);
-      bmax = bmax.cwiseMax(points_[i]);
-    }
-    int axis;
-    (bmax - bmin).maxCoeff(&axis);
-    const size_t mid = lo + (hi - lo) / 2;
-    std::nth_element(
-        points_.begin() + lo, points_.begin() + mid, points_.begin() + hi,
-        [axis](const Eigen::Vector3f& a, const Eigen::Vector3f& b) { return a[axis] < b[axis]; });
-    axis_[mid] = static_cast<uint8_t>(axis);
-    Build(lo, mid);
-    Build(mid + 1, hi);
-  }
-
-  void Search(const Eigen::Vector3f& q, size_t lo, size_t hi, float* best_sq) const {
-    if (hi - lo <= kLeafSize) {
-      for (size_t i = lo; i < hi; ++i)
-        *best_sq = std::min(*best_sq, (points_[i] - q).squaredNorm());
-      return;
-    }
-    const size_t mid = lo + (hi - lo) / 2;
-    const int axis = axis_[mid];
-    *best_sq = std::min(*best_sq, (points_[mid] - q).squaredNorm());
-    const float diff = q[axis] - points_[mid][axis];
-    if (diff < 0.f) {
-      Search(q, lo, mid, best_sq);
-      if (diff * diff < *best_sq) Search(q, mid + 1, hi, best_sq);
-    } else {
-      Search(q, mid + 1, hi, best_sq);
-      if (diff * diff < *best_sq) Search(q, lo, mid, best_sq);
-    }
-  }
-
-  std::vector<Eigen::Vector3f> points_;
-  std::vector<uint8_t> axis_;
-};
 
 }  // namespace
 
@@ -576,9 +518,14 @@ MeshErrors EvaluateMesh(const Mesh& mesh, const AnalyticScene& scene,
                        [&](const AnalyticScene::SurfacePoint& sp) { return !truth_filter(sp.p); }),
         truth.end());
   }
-  const KdTree tree(std::move(mesh_points));
+  std::vector<rim::eval::Point3f> mesh_xyz;
+  mesh_xyz.reserve(mesh_points.size());
+  for (const Eigen::Vector3f& p : mesh_points) mesh_xyz.push_back({p.x(), p.y(), p.z()});
+  const rim::eval::NearestNeighbors tree(std::move(mesh_xyz));
   double dist_sum = 0.0;
-  for (const auto& sp : truth) dist_sum += tree.NearestDistance(sp.p);
+  for (const auto& sp : truth) {
+    dist_sum += std::sqrt(tree.NearestSquaredDistance({sp.p.x(), sp.p.y(), sp.p.z()}));
+  }
   // With no exposed surface in the region there is nothing to miss.
   errors.completeness_m = truth.empty() ? 0.0 : dist_sum / double(truth.size());
   errors.chamfer_l1_m = 0.5 * (errors.accuracy_m + errors.completeness_m);

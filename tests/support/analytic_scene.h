@@ -10,7 +10,7 @@
 #include <functional>
 #include <vector>
 
-#include "rim/mesh.h"
+#include "rim/base/mesh.h"
 
 namespace rim::testing_support {
 

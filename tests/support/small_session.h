@@ -7,7 +7,7 @@
 #include <utility>
 #include <vector>
 
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 
 namespace rim::testing_support {
 

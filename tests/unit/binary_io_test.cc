@@ -1,4 +1,4 @@
-#include "rim/binary_io.h"
+#include "rim/base/binary_io.h"
 
 #include <dirent.h>
 #include <stdlib.h>

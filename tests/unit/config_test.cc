@@ -1,6 +1,6 @@
 // Mapper configuration (DESIGN.md §3.7, §5.2 "bad input names the field"): presets, overrides,
 // validation, config text and files, and the ToString round trip that checkpoints rely on.
-#include "rim/config.h"
+#include "rim/config/config.h"
 
 #include <stdlib.h>
 #include <unistd.h>

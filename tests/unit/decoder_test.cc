@@ -2,7 +2,7 @@
 // libtorch and finite differences, the analytic position gradient of the whole pipeline, batch
 // determinism, Adam against torch::optim::Adam, and the training loss/gradients of RunTrainStep
 // against a hand computation in double.
-#include "rim/decoder.h"
+#include "rim/model/decoder.h"
 
 #include <torch/torch.h>
 
@@ -16,12 +16,12 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/encoder.h"
-#include "rim/local_map.h"
-#include "rim/map_geometry.h"
-#include "rim/submap_store.h"
-#include "rim/train_step.h"
+#include "rim/config/config.h"
+#include "rim/map/local_map.h"
+#include "rim/map/map_geometry.h"
+#include "rim/map/submap_store.h"
+#include "rim/model/encoder.h"
+#include "rim/train/train_step.h"
 
 namespace rim {
 namespace {

@@ -2,7 +2,7 @@
 // against a direct reference, the sparse feature-gradient scatter against finite differences, and
 // FeatureReader (local map + sub-map store) against EncodeLocal, finite differences and a
 // reference world.
-#include "rim/encoder.h"
+#include "rim/model/encoder.h"
 
 #include <algorithm>
 #include <cmath>
@@ -17,12 +17,12 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/half.h"
-#include "rim/local_map.h"
-#include "rim/map_geometry.h"
-#include "rim/submap_store.h"
-#include "rim/trainer.h"
+#include "rim/base/half.h"
+#include "rim/config/config.h"
+#include "rim/map/local_map.h"
+#include "rim/map/map_geometry.h"
+#include "rim/map/submap_store.h"
+#include "rim/train/trainer.h"
 
 namespace rim {
 namespace {

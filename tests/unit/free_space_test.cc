@@ -1,6 +1,7 @@
-// Free-space marking (rim/free_space.h): the finest voxels a ray crosses in front of its endpoint
-// are marked seen free, exactly those, and the surface band and the space behind stay unmarked.
-#include "rim/free_space.h"
+// Free-space marking (rim/train/free_space.h): the finest voxels a ray crosses in front of its
+// endpoint are marked seen free, exactly those, and the surface band and the space behind stay
+// unmarked.
+#include "rim/train/free_space.h"
 
 #include <algorithm>
 #include <atomic>
@@ -12,8 +13,8 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/map_geometry.h"
+#include "rim/config/config.h"
+#include "rim/map/map_geometry.h"
 
 namespace rim {
 namespace {

@@ -1,6 +1,6 @@
-// Half-float storage of the sub-map store (rim/half.h): exact round trips, round to nearest
+// Half-float storage of the sub-map store (rim/base/half.h): exact round trips, round to nearest
 // even, saturation instead of infinity, and agreement with the CPU's own conversion.
-#include "rim/half.h"
+#include "rim/base/half.h"
 
 #include <cmath>
 #include <cstdint>

@@ -14,7 +14,6 @@
 #include "gtest/gtest.h"
 #include "rim/io/depth.h"
 #include "rim/io/file_util.h"
-#include "rim/io/json_lite.h"
 #include "rim/io/kitti.h"
 #include "rim/io/lzf.h"
 #include "rim/io/pcd.h"

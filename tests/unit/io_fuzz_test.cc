@@ -13,7 +13,7 @@
 #include "absl/status/status.h"
 #include "gtest/gtest.h"
 #include "rim/io/depth.h"
-#include "rim/io/json_lite.h"
+#include "rim/io/json.h"
 #include "rim/io/kitti.h"
 #include "rim/io/lzf.h"
 #include "rim/io/pcd.h"

@@ -1,7 +1,7 @@
 // Ring-buffer sliding of the robot-centric local map (DESIGN.md §3.2) against an explicit
 // "global array" reference: every world voxel's expected content is kept in a hash map in the
 // test, and after every move the live grids must agree with it exactly.
-#include "rim/local_map.h"
+#include "rim/map/local_map.h"
 
 #include <array>
 #include <cstdint>
@@ -15,11 +15,11 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/half.h"
-#include "rim/map_geometry.h"
-#include "rim/slab_saver.h"
-#include "rim/submap_store.h"
+#include "rim/base/half.h"
+#include "rim/config/config.h"
+#include "rim/map/map_geometry.h"
+#include "rim/map/slab_saver.h"
+#include "rim/map/submap_store.h"
 
 namespace rim {
 namespace {

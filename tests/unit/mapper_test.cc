@@ -15,9 +15,9 @@
 #include <set>
 #include <thread>
 
-#include "rim/decoder.h"
-#include "rim/map_geometry.h"
-#include "rim/submap_store.h"
+#include "rim/map/map_geometry.h"
+#include "rim/map/submap_store.h"
+#include "rim/model/decoder.h"
 #include "support/analytic_scene.h"
 
 namespace rim {

@@ -1,4 +1,4 @@
-#include "rim/marching_cubes.h"
+#include "rim/mesh/marching_cubes.h"
 
 #include <gtest/gtest.h>
 
@@ -14,7 +14,7 @@
 #include <utility>
 #include <vector>
 
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 
 namespace rim {
 namespace {

@@ -13,8 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "rim/eval/kd_tree.h"
-#include "rim/mesh_io.h"
+#include "rim/eval/nearest_neighbors.h"
+#include "rim/io/mesh_io.h"
 
 namespace rim::eval {
 namespace {
@@ -84,7 +84,7 @@ double Area(const Mesh& mesh) {
   return area;
 }
 
-TEST(KdTreeTest, MatchesBruteForce) {
+TEST(NearestNeighborsTest, MatchesBruteForce) {
   std::mt19937 rng(7);
   std::normal_distribution<float> cluster(0.0f, 0.05f);
   std::uniform_real_distribution<float> centre(-2.0f, 2.0f);
@@ -103,7 +103,7 @@ TEST(KdTreeTest, MatchesBruteForce) {
 
   for (int n : {1, 5, 8, 9, 100, static_cast<int>(points.size())}) {
     std::vector<Point3f> subset(points.begin(), points.begin() + n);
-    const KdTree tree(subset, /*threads=*/3);
+    const NearestNeighbors tree(subset);
     const std::vector<float> fast = tree.NearestDistances(queries, 2);
     for (size_t q = 0; q < queries.size(); ++q) {
       float best = INFINITY;
@@ -114,7 +114,7 @@ TEST(KdTreeTest, MatchesBruteForce) {
       ASSERT_EQ(fast[q], std::sqrt(best)) << "n=" << n << " query " << q;
     }
   }
-  EXPECT_EQ(KdTree({}, 1).NearestSquaredDistance({0, 0, 0}), INFINITY);
+  EXPECT_EQ(NearestNeighbors({}).NearestSquaredDistance({0, 0, 0}), INFINITY);
 }
 
 TEST(MeshEvalTest, MeshAgainstItselfIsNearZero) {

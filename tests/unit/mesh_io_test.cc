@@ -1,4 +1,4 @@
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 
 #include <gtest/gtest.h>
 

@@ -1,7 +1,7 @@
 // The hand-written training step (MlpTrainStep) against the libtorch reference (RunTrainStep):
 // same loss, same feature gradient, same parameter gradient, for decoders of 0–2 hidden layers,
 // with and without the eikonal term, frozen or training, on one thread or several.
-#include "rim/mlp_step.h"
+#include "rim/train/mlp_step.h"
 
 #include <algorithm>
 #include <cmath>
@@ -12,10 +12,10 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/decoder.h"
-#include "rim/train_step.h"
-#include "rim/worker_pool.h"
+#include "rim/base/worker_pool.h"
+#include "rim/config/config.h"
+#include "rim/model/decoder.h"
+#include "rim/train/train_step.h"
 
 namespace rim {
 namespace {

@@ -1,7 +1,7 @@
 // The historical point buffer (DESIGN.md §3.4 step 2): per-frame and total caps with random
 // dropping, removal of points that left the box, filtering, and persistence including the random
 // generator state.
-#include "rim/point_buffer.h"
+#include "rim/train/point_buffer.h"
 
 #include <cstdint>
 #include <map>
@@ -12,8 +12,8 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/binary_io.h"
-#include "rim/config.h"
+#include "rim/base/binary_io.h"
+#include "rim/config/config.h"
 
 namespace rim {
 namespace {

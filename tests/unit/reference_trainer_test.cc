@@ -9,13 +9,13 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/decoder.h"
-#include "rim/local_map.h"
-#include "rim/map_geometry.h"
-#include "rim/sampler.h"
-#include "rim/train_step.h"
-#include "rim/trainer.h"
+#include "rim/config/config.h"
+#include "rim/map/local_map.h"
+#include "rim/map/map_geometry.h"
+#include "rim/model/decoder.h"
+#include "rim/train/sampler.h"
+#include "rim/train/train_step.h"
+#include "rim/train/trainer.h"
 
 namespace rim {
 namespace {

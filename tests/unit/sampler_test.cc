@@ -1,7 +1,7 @@
 // Training samples along rays (DESIGN.md §3.4 step 3): surface and stratified free-space samples
 // with labels measured along the ray, dropping of out-of-box samples, outside rays cut at the box
 // exit but labelled with the real range, and the ray/box exit distance.
-#include "rim/sampler.h"
+#include "rim/train/sampler.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,8 +11,8 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/point_buffer.h"
+#include "rim/config/config.h"
+#include "rim/train/point_buffer.h"
 
 namespace rim {
 namespace {

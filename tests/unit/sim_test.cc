@@ -22,7 +22,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 #include "sim/city.h"
 #include "sim/geometry.h"
 #include "sim/rng.h"

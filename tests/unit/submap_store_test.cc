@@ -1,7 +1,7 @@
 // The global map of sparse sub-maps (DESIGN.md §3.3): serialisation round trips, sparse block
 // accounting, freeze/activate with spilling to disk, corrupt input, and concurrent use through the
 // background slab saver.
-#include "rim/submap_store.h"
+#include "rim/map/submap_store.h"
 
 #include <stdlib.h>
 
@@ -22,10 +22,10 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/config.h"
-#include "rim/half.h"
-#include "rim/map_geometry.h"
-#include "rim/slab_saver.h"
+#include "rim/base/half.h"
+#include "rim/config/config.h"
+#include "rim/map/map_geometry.h"
+#include "rim/map/slab_saver.h"
 
 namespace rim {
 namespace {

@@ -1,6 +1,6 @@
 // WorkerPool: every task runs exactly once per Run, on several threads, over many back-to-back
 // regions (the training loop's pattern), and a pool of one thread runs inline.
-#include "rim/worker_pool.h"
+#include "rim/base/worker_pool.h"
 
 #include <atomic>
 #include <mutex>

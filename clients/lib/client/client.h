@@ -30,8 +30,8 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/tiles.h"
-#include "rim/scan.h"
-#include "rim/types.h"
+#include "rim/base/scan.h"
+#include "rim/base/types.h"
 #include "rim/v1/rim.pb.h"
 
 namespace rim {

@@ -5,7 +5,7 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
-#include "rim/mesh_io.h"
+#include "rim/io/mesh_io.h"
 #include "server/mesh_codec.h"
 
 namespace rim {

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "rim/mesh.h"
+#include "rim/base/mesh.h"
 #include "rim/v1/rim.pb.h"
 
 namespace rim {

@@ -8,8 +8,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "rim/scan.h"
-#include "rim/types.h"
+#include "rim/base/scan.h"
+#include "rim/base/types.h"
 #include "rim/v1/rim.pb.h"
 
 namespace rim {

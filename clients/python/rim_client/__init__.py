@@ -7,7 +7,7 @@
     result = session.query(points_W, gradient=True)   # result.sdf, .gradient, .observed
     tiles = session.mesh_tiles(since=0)               # Draco-encoded mesh tiles
 
-Needs the generated stubs on PYTHONPATH (clients/python/README.md).
+Install with pip, which also generates the gRPC stubs (clients/python/README.md).
 """
 
 from rim_client.client import Client

@@ -4,13 +4,15 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "rim/eval/kd_tree.h"
-#include "rim/status_macros.h"
+#include "rim/base/status_macros.h"
+#include "rim/eval/nearest_neighbors.h"
+#include "rim/eval/parallel_for.h"
 
 namespace rim::eval {
 namespace {
@@ -451,8 +453,17 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
   result.pred_points = static_cast<int64_t>(pred_points.size());
 
   // Step 4. Each tree takes a copy, because the query order (voxel-key order) is the fast one.
-  std::vector<float> pred_to_gt = KdTree(gt_points, threads).NearestDistances(pred_points, threads);
-  std::vector<float> gt_to_pred = KdTree(pred_points, threads).NearestDistances(gt_points, threads);
+  // nanoflann builds a tree on one thread, so the two trees are built side by side.
+  std::unique_ptr<NearestNeighbors> gt_index, pred_index;
+  ParallelFor(2, 1, threads, [&](int64_t i, int64_t) {
+    if (i == 0) {
+      gt_index = std::make_unique<NearestNeighbors>(gt_points);
+    } else {
+      pred_index = std::make_unique<NearestNeighbors>(pred_points);
+    }
+  });
+  std::vector<float> pred_to_gt = gt_index->NearestDistances(pred_points, threads);
+  std::vector<float> gt_to_pred = pred_index->NearestDistances(gt_points, threads);
 
   // Steps 5–6.
   result.standard = ComputeMetrics(pred_to_gt, gt_to_pred, options, /*strict=*/false);

@@ -19,7 +19,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "rim/mesh.h"
+#include "rim/base/mesh.h"
 
 namespace rim::eval {
 

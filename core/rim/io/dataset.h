@@ -6,7 +6,7 @@
 #include <string>
 
 #include "absl/status/statusor.h"
-#include "rim/scan.h"
+#include "rim/base/scan.h"
 
 namespace rim::io {
 

@@ -3,9 +3,9 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
-#include "rim/io/json_lite.h"
-#include "rim/status_macros.h"
+#include "rim/io/json.h"
 
 namespace rim::io {
 
@@ -72,21 +72,21 @@ absl::StatusOr<ReplicaCamera> ReadReplicaCamParams(const std::string& path) {
 
 absl::StatusOr<ReplicaCamera> ParseReplicaCamParams(absl::string_view data,
                                                     const std::string& path) {
-  RIM_ASSIGN_OR_RETURN(const JsonValue root, ParseJson(data, path));
-  if (root.type != JsonValue::Type::kObject) {
+  RIM_ASSIGN_OR_RETURN(const nlohmann::json root, ParseJson(data, path));
+  if (!root.is_object()) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": expected a JSON object"));
   }
-  const JsonValue* camera = root.Find("camera");
-  const JsonValue& obj =
-      camera != nullptr && camera->type == JsonValue::Type::kObject ? *camera : root;
+  const auto camera = root.find("camera");
+  const bool has_camera = camera != root.end();
+  const nlohmann::json& obj = has_camera && camera->is_object() ? *camera : root;
   auto get = [&](const char* key, double* out) -> absl::Status {
-    const JsonValue* v = obj.Find(key);
-    if (v == nullptr || v->type != JsonValue::Type::kNumber) {
+    const auto v = obj.find(key);
+    if (v == obj.end() || !v->is_number() || !std::isfinite(v->get<double>())) {
       return absl::InvalidArgumentError(absl::StrCat(
           path, ": missing number '", key, "' (need w, h, fx, fy, cx, cy, scale",
-          camera != nullptr ? " in \"camera\")" : " in a \"camera\" object or at the top level)"));
+          has_camera ? " in \"camera\")" : " in a \"camera\" object or at the top level)"));
     }
-    *out = v->number;
+    *out = v->get<double>();
     return absl::OkStatus();
   };
   double w = 0, h = 0;

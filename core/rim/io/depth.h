@@ -13,8 +13,8 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/strings/string_view.h"
+#include "rim/base/types.h"
 #include "rim/io/png_io.h"
-#include "rim/types.h"
 
 namespace rim::io {
 

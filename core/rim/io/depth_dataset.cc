@@ -6,12 +6,12 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/dataset_internal.h"
 #include "rim/io/depth.h"
 #include "rim/io/file_util.h"
 #include "rim/io/png_io.h"
 #include "rim/io/pose_file.h"
-#include "rim/status_macros.h"
 
 namespace rim::io::internal {
 namespace {

@@ -14,7 +14,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
-#include "rim/status_macros.h"
+#include "rim/base/status_macros.h"
 
 namespace rim::io {
 

@@ -5,9 +5,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/string_view.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
 #include "rim/io/pose_file.h"
-#include "rim/status_macros.h"
 
 namespace rim::io {
 

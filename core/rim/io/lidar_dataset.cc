@@ -5,13 +5,13 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/dataset_internal.h"
 #include "rim/io/file_util.h"
 #include "rim/io/kitti.h"
 #include "rim/io/pcd.h"
 #include "rim/io/ply_points.h"
 #include "rim/io/pose_file.h"
-#include "rim/status_macros.h"
 
 namespace rim::io::internal {
 namespace {

@@ -1,11 +1,5 @@
-// LZF compression, the codec of PCD's binary_compressed DATA, written from the format description
-// (compatible with liblzf's lzf_compress/lzf_decompress streams).
-//
-// A stream is a sequence of chunks, each starting with a control byte `ctrl`:
-//   ctrl < 32:  a literal run; the next ctrl + 1 bytes are copied to the output.
-//   ctrl >= 32: a back-reference; len = ctrl >> 5 (if 7, add the next byte), then
-//               offset = ((ctrl & 0x1f) << 8) + next byte + 1; copy len + 2 bytes starting `offset`
-//               bytes before the current end of the output (the ranges may overlap).
+// LZF, the codec of PCD's binary_compressed DATA, through liblzf (Debian liblzf-dev), with the
+// checks a reader of untrusted files needs and errors that name the file.
 #pragma once
 
 #include <cstddef>
@@ -24,8 +18,9 @@ inline constexpr size_t kLzfMaxExpansion = 88;
 std::string LzfCompress(absl::string_view input);
 
 // Decompresses `input`, which must produce exactly `expected_size` bytes. Errors (DataLoss) for
-// truncated streams, references before the start of the output, or output of another size;
-// `context` (e.g. the file name) starts each message. Allocates at most `expected_size` bytes.
+// corrupt or truncated streams, references before the start of the output, or output of another
+// size; `context` (e.g. the file name) starts each message. Allocates at most `expected_size`
+// bytes, and refuses sizes no stream of this length can produce before allocating.
 absl::StatusOr<std::string> LzfDecompress(absl::string_view input, size_t expected_size,
                                           absl::string_view context);
 

@@ -12,9 +12,9 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
 #include "rim/io/lzf.h"
-#include "rim/status_macros.h"
 
 namespace rim::io {
 namespace {

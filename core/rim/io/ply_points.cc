@@ -12,8 +12,8 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
-#include "rim/status_macros.h"
 
 namespace rim::io {
 namespace {

@@ -7,8 +7,8 @@
 #include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
-#include "rim/status_macros.h"
 
 namespace rim::io {
 namespace {

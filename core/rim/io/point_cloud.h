@@ -4,7 +4,7 @@
 #include <cstddef>
 #include <vector>
 
-#include "rim/types.h"
+#include "rim/base/types.h"
 
 namespace rim::io {
 

@@ -5,8 +5,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "rim/base/status_macros.h"
 #include "rim/io/file_util.h"
-#include "rim/status_macros.h"
 
 namespace rim::io {
 namespace {

@@ -1,0 +1,159 @@
+// The global map (§3.3): sub-maps the size of the local box, keyed by integer index, each storing
+// only the blocks (block_size³ voxels) that hold data. Thread-safe: the background saver writes
+// while queries and the mesher read.
+//
+// A block is kept when any of its voxels was ever trained or observed. That is slightly more than
+// "blocks with observed voxels": free-space voxels next to surfaces carry the positive SDF that
+// queries and meshing need, and dropping them would make save/restore lossy.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "rim/map/local_map.h"
+#include "rim/map/map_geometry.h"
+
+namespace rim {
+
+enum class SubmapState { kActive = 0, kFrozen = 1, kOnDisk = 2 };
+
+struct SubmapStoreStats {
+  int active = 0, frozen = 0, on_disk = 0;
+  int64_t blocks = 0;
+  int64_t host_bytes = 0;
+};
+
+class SubmapStore {
+ public:
+  SubmapStore(const MapGeometry& geometry, const SubmapConfig& config);
+
+  // Stores the voxels of a slab that left the local map, replacing what was there (features
+  // rounded to half precision, RoundToHalf).
+  void Write(const SlabBatch& batch);
+  // Reads one voxel; false (and nothing written) when the store has no data there.
+  bool Read(int level, const Int3& g, float* features, uint8_t* observed) const;
+
+  // Where lattice point g of a level lives: its block, named by the world lattice index of the
+  // block's minimum corner (unique per level), and its index inside the block.
+  struct BlockAddress {
+    Int3 origin;
+    int index;
+  };
+  BlockAddress Address(int level, const Int3& g) const;
+  int block_voxels() const { return config_.block_size * config_.block_size * config_.block_size; }
+
+  // Features are stored as IEEE half floats (rim/base/half.h): the global map is most of a long
+  // session's memory, and features that no longer train lose nothing that matters at 11
+  // significant bits (relative error ≤ 2^-11; DESIGN.md's accuracy checks run on the result).
+  struct Block {
+    std::vector<uint16_t> features;  // block³ · D halves, index (x·B + y)·B + z
+    std::vector<uint8_t> observed;   // block³, level 0 only
+  };
+  // The block holding lattice point g, shared and immutable: a later Write to it copies it
+  // first, so a reader may keep using what it got without a lock. Null when the store has no
+  // data there. Readers that visit many neighbouring points pay one lock and one lookup per
+  // block instead of one per point, and copy nothing.
+  std::shared_ptr<const Block> ReadBlock(int level, const Int3& g) const;
+
+  // Read for a caller that visits many neighbouring voxels (a slab entering the local map): it
+  // keeps up to kCachedBlocks blocks it visited per level, absent ones included, so the blocks
+  // of a column of z runs, visited again by the runs of the next columns, cost one lock and one
+  // lookup each. What it returns is a block as it was when first visited (ReadBlock's
+  // snapshot). One reader per thread.
+  class CachedReader {
+   public:
+    explicit CachedReader(const SubmapStore& store) : store_(store) {}
+    bool Read(int level, const Int3& g, float* features, uint8_t* observed);
+    // A run along z, as LocalMap::LoadRunFn asks: every voxel of a block the store holds gets
+    // its features and flags = kHasData | its observed bits; voxels of absent blocks are left
+    // as they are. One address computation, and one lookup if the block changes, per block the
+    // run crosses, and the features of a block's piece of the run widened in one call.
+    void ReadRun(int level, const Int3& g, int n, float* features, uint8_t* flags);
+
+   private:
+    // Twice the blocks a z run of the local map crosses for every preset (its height over the
+    // block size, 8).
+    static constexpr int kCachedBlocks = 16;
+    struct Cached {
+      bool valid = false;
+      Int3 origin;
+      std::shared_ptr<const Block> block;
+    };
+    // The cached block holding g (looked up or read), made the current one of its level.
+    void Visit(int level, const Int3& g, const Int3& origin);
+
+    const SubmapStore& store_;
+    Cached cache_[kMaxLevels][kCachedBlocks];
+    bool valid_[kMaxLevels] = {};
+    Int3 origin_[kMaxLevels];
+    const Block* block_[kMaxLevels] = {};
+    // The last point read per level, its index in the block and the end (exclusive) of the
+    // block's z range, which a sub-map border may cut short: the next z before that end is the
+    // next index, with no address arithmetic (divisions).
+    Int3 last_[kMaxLevels];
+    int index_[kMaxLevels] = {}, z_end_[kMaxLevels] = {};
+  };
+  // Finest-level lattice indices of observed voxels stored in a sub-map.
+  std::vector<Int3> ObservedCells(const Int3& key) const;
+
+  // Per-sub-map versions (the map version of its last change); creates the entry if needed.
+  void SetVersion(const Int3& key, uint64_t version);
+  void SetAllVersions(uint64_t version);
+  std::vector<std::pair<Int3, uint64_t>> Versions() const;
+
+  // Freeze/activate policy: sub-maps within config.active_radius_submaps of the robot's sub-map
+  // are active, the rest frozen; then, while host memory exceeds the budget, the least recently
+  // used frozen sub-maps spill to disk. A spilled sub-map reloads when it is read again.
+  absl::Status UpdateActivity(const Int3& robot_submap);
+  SubmapStoreStats Stats() const;
+  std::vector<Int3> Keys() const;
+
+  // Whole-store persistence: one checksummed file per sub-map under `dir`.
+  absl::Status SaveTo(const std::string& dir) const;
+  absl::Status LoadFrom(const std::string& dir);
+  // One sub-map as bytes and back (also used for spilling). Deserialize replaces the sub-map.
+  absl::StatusOr<std::string> SerializeSubmap(const Int3& key) const;
+  absl::Status DeserializeSubmap(const std::string& bytes, const std::string& context);
+
+  // Sticky error of a failed reload of a spilled sub-map (reads then see no data).
+  absl::Status last_error() const;
+
+ private:
+  struct Submap {
+    // Shared with readers that hold them (ReadBlock): written in place only while unshared.
+    std::unordered_map<Int3, std::shared_ptr<Block>, Int3Hash, Int3Equal> blocks[kMaxLevels];
+    uint64_t version = 0;
+    SubmapState state = SubmapState::kActive;
+    uint64_t last_access = 0;
+    int64_t bytes = 0;
+  };
+
+  // Caller holds mu_. Reloads a spilled sub-map; returns null if the key is unknown.
+  Submap* FindLocked(const Int3& key) const;
+  absl::Status ParseSubmap(const std::string& bytes, const std::string& context, Int3* key,
+                           Submap* out) const;
+  void SerializeLocked(const Int3& key, const Submap& s, std::string* out) const;
+  std::string SpillPath(const Int3& key) const;
+  int64_t BlockBytes(int level) const;
+
+  MapGeometry geometry_;
+  SubmapConfig config_;
+  mutable std::mutex mu_;
+  mutable std::unordered_map<Int3, Submap, Int3Hash, Int3Equal> submaps_;
+  mutable uint64_t access_clock_ = 0;
+  mutable int64_t host_bytes_ = 0;
+  mutable absl::Status last_error_;
+};
+
+// The file kind of a serialised sub-map (spilled, or saved in a checkpoint).
+inline constexpr char kSubmapFileKind[] = "SUBM";
+
+std::string SubmapKeyName(const Int3& key);
+
+}  // namespace rim

@@ -1,0 +1,187 @@
+// SubmapStore's serialisation: one sub-map to bytes and back, and a whole store to a directory of
+// checksummed files.
+#include <dirent.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstring>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "rim/base/binary_io.h"
+#include "rim/base/half.h"
+#include "rim/base/status_macros.h"
+#include "rim/map/submap_store.h"
+
+namespace rim {
+
+void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string* out) const {
+  ByteWriter w;
+  w.I32(key.x());
+  w.I32(key.y());
+  w.I32(key.z());
+  w.U64(s.version);
+  w.I32(geometry_.levels());
+  std::vector<float> wide;
+  w.I32(geometry_.feature_dim());
+  w.I32(config_.block_size);
+  for (int l = 0; l < geometry_.levels(); ++l) {
+    // Sorted by block key so that the same content always gives the same bytes.
+    std::vector<const std::pair<const Int3, std::shared_ptr<Block>>*> blocks;
+    for (const auto& kv : s.blocks[l]) blocks.push_back(&kv);
+    std::sort(blocks.begin(), blocks.end(), [](const auto* a, const auto* b) {
+      return std::lexicographical_compare(a->first.data(), a->first.data() + 3, b->first.data(),
+                                          b->first.data() + 3);
+    });
+    w.U64(blocks.size());
+    for (const auto* kv : blocks) {
+      w.I32(kv->first.x());
+      w.I32(kv->first.y());
+      w.I32(kv->first.z());
+      // On disk as float32, the format checkpoints have always had: the halves widen exactly,
+      // and narrow back to the same halves on load.
+      const std::vector<uint16_t>& h = kv->second->features;
+      wide.resize(h.size());
+      HalvesToFloats(h.data(), h.size(), wide.data());
+      w.FloatArray(wide.data(), wide.size());
+      w.PodVector(kv->second->observed);
+    }
+  }
+  *out = w.Release();
+}
+
+absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  const Submap* s = FindLocked(key);
+  if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
+  // Its data is on disk and could not be reloaded: serialising it as empty would lose it.
+  if (s->state == SubmapState::kOnDisk)
+    return absl::DataLossError(absl::StrCat("sub-map ", SubmapKeyName(key),
+                                            " could not be reloaded from ", SpillPath(key), ": ",
+                                            last_error_.message()));
+  std::string out;
+  SerializeLocked(key, *s, &out);
+  return out;
+}
+
+absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::string& context,
+                                      Int3* key_out, Submap* out) const {
+  ByteReader r(bytes, context);
+  Int3 key;
+  uint64_t version;
+  int32_t levels, dim, block;
+  std::vector<float> wide;
+  RIM_RETURN_IF_ERROR(r.I32(&key.x()));
+  RIM_RETURN_IF_ERROR(r.I32(&key.y()));
+  RIM_RETURN_IF_ERROR(r.I32(&key.z()));
+  RIM_RETURN_IF_ERROR(r.U64(&version));
+  RIM_RETURN_IF_ERROR(r.I32(&levels));
+  RIM_RETURN_IF_ERROR(r.I32(&dim));
+  RIM_RETURN_IF_ERROR(r.I32(&block));
+  if (levels != geometry_.levels() || dim != geometry_.feature_dim() || block != config_.block_size)
+    return absl::DataLossError(absl::StrCat(context, ": sub-map layout (levels ", levels, ", dim ",
+                                            dim, ", block ", block, ") does not match the config"));
+  // Sub-maps of a live map lie within reach of poses within 1e6 m (Mapper::ValidateScan); a corrupt
+  // key far beyond would overflow the lattice arithmetic (key * cells) of every read and mesh.
+  for (int a = 0; a < 3; ++a) {
+    const double metres = std::abs(double(key[a])) * geometry_.extent_m()[a];
+    const int64_t lattice = (std::abs(int64_t(key[a])) + 1) * geometry_.cells(0)[a];
+    if (metres > 1e6 + 2 * geometry_.extent_m()[a] || lattice > (int64_t{1} << 30))
+      return absl::DataLossError(
+          absl::StrCat(context, ": sub-map key ", SubmapKeyName(key), " is out of range"));
+  }
+  const size_t b3 = size_t(block) * block * block;
+  Submap s;
+  s.version = version;
+  s.state = SubmapState::kFrozen;
+  for (int l = 0; l < levels; ++l) {
+    uint64_t n;
+    RIM_RETURN_IF_ERROR(r.U64(&n));
+    if (n > r.remaining() / 12)
+      return absl::DataLossError(absl::StrCat(context, ": bad block count"));
+    for (uint64_t i = 0; i < n; ++i) {
+      Int3 bk;
+      RIM_RETURN_IF_ERROR(r.I32(&bk.x()));
+      RIM_RETURN_IF_ERROR(r.I32(&bk.y()));
+      RIM_RETURN_IF_ERROR(r.I32(&bk.z()));
+      // A sub-map owns lattice points [0, cells) from its corner, so blocks [0, (cells - 1) / B].
+      const Int3 last_block = FloorDiv(geometry_.cells(l) - Int3::Ones(), Int3::Constant(block));
+      if ((bk.array() < 0).any() || (bk.array() > last_block.array()).any())
+        return absl::DataLossError(absl::StrCat(context, ": block ", SubmapKeyName(bk),
+                                                " at level ", l, " lies outside its sub-map"));
+      auto b = std::make_shared<Block>();
+      RIM_RETURN_IF_ERROR(r.FloatArray(&wide));
+      RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));
+      if (wide.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
+        return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
+      b->features.resize(wide.size());
+      FloatsToHalves(wide.data(), wide.size(), b->features.data());
+      s.blocks[l].emplace(bk, std::move(b));
+      s.bytes += BlockBytes(l);
+    }
+  }
+  RIM_RETURN_IF_ERROR(r.ExpectEnd());
+  *key_out = key;
+  *out = std::move(s);
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std::string& context) {
+  Int3 key;
+  Submap s;
+  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, &key, &s));
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = submaps_.find(key);
+  if (it != submaps_.end()) {
+    host_bytes_ -= it->second.bytes;
+    s.state =
+        it->second.state == SubmapState::kActive ? SubmapState::kActive : SubmapState::kFrozen;
+  }
+  s.last_access = ++access_clock_;
+  host_bytes_ += s.bytes;
+  submaps_[key] = std::move(s);
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::SaveTo(const std::string& dir) const {
+  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  for (const Int3& key : Keys()) {
+    RIM_ASSIGN_OR_RETURN(std::string bytes, SerializeSubmap(key));
+    RIM_RETURN_IF_ERROR(WriteFileAtomic(absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm"),
+                                        kSubmapFileKind, bytes));
+  }
+  // Files of sub-maps that no longer exist would come back on load: remove them.
+  std::vector<Int3> keys = Keys();
+  if (DIR* d = opendir(dir.c_str())) {
+    while (dirent* e = readdir(d)) {
+      std::string name = e->d_name;
+      if (name.rfind("submap_", 0) != 0 || name.size() < 12) continue;
+      bool keep = false;
+      for (const Int3& k : keys) keep |= name == absl::StrCat("submap_", SubmapKeyName(k), ".subm");
+      if (!keep) unlink((dir + "/" + name).c_str());
+    }
+    closedir(d);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::LoadFrom(const std::string& dir) {
+  DIR* d = opendir(dir.c_str());
+  if (!d) return absl::NotFoundError(absl::StrCat("cannot open sub-map directory ", dir));
+  std::vector<std::string> files;
+  while (dirent* e = readdir(d)) {
+    std::string name = e->d_name;
+    if (name.rfind("submap_", 0) == 0 && name.size() > 5 && name.substr(name.size() - 5) == ".subm")
+      files.push_back(dir + "/" + name);
+  }
+  closedir(d);
+  std::sort(files.begin(), files.end());
+  for (const std::string& f : files) {
+    RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(f, kSubmapFileKind));
+    RIM_RETURN_IF_ERROR(DeserializeSubmap(bytes, f));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace rim

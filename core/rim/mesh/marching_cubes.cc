@@ -1,0 +1,246 @@
+#include "rim/mesh/marching_cubes.h"
+
+#include <array>
+#include <cassert>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
+
+namespace rim {
+namespace {
+
+constexpr int kNumCorners = 8;
+constexpr int kNumEdges = 12;
+// A cube has at most 12 crossing edges and every closed loop of n of them yields n - 2
+// triangles, so 12 triangle slots are always enough.
+constexpr int kMaxTriangles = 12;
+
+bool CornerBit(int corner, int axis) { return ((corner >> axis) & 1) != 0; }
+
+// Edge id = axis * 4 + the two remaining corner bits of its lower corner, (axis+1) bit first.
+int EdgeId(int corner_a, int corner_b) {
+  const int diff = corner_a ^ corner_b;
+  const int axis = diff == 1 ? 0 : (diff == 2 ? 1 : 2);
+  const int lower = corner_a & corner_b;
+  const int k =
+      (CornerBit(lower, (axis + 1) % 3) ? 1 : 0) | (CornerBit(lower, (axis + 2) % 3) ? 2 : 0);
+  return axis * 4 + k;
+}
+
+// Coordinate bit (0 or 1) of an edge along an axis other than its own, read from the edge id.
+int EdgeSideBit(int edge, int axis) {
+  const int edge_axis = edge / 4;
+  return axis == (edge_axis + 1) % 3 ? (edge & 1) : ((edge >> 1) & 1);
+}
+
+// Two cube edges lie on a common face when both sit at the same side along a third axis.
+bool EdgesShareFace(int edge_a, int edge_b) {
+  for (int axis = 0; axis < 3; ++axis) {
+    if (axis == edge_a / 4 || axis == edge_b / 4) continue;
+    if (EdgeSideBit(edge_a, axis) == EdgeSideBit(edge_b, axis)) return true;
+  }
+  return false;
+}
+
+struct CaseTable {
+  // Lower corner and axis of each edge id, for turning a table entry into a grid edge.
+  std::array<uint8_t, kNumEdges> edge_lower_corner;
+  std::array<uint8_t, kNumEdges> edge_axis;
+  std::array<uint8_t, 256> num_triangles;
+  // Triangles as edge ids, counter-clockwise seen from the positive side.
+  std::array<std::array<std::array<uint8_t, 3>, kMaxTriangles>, 256> triangles;
+};
+
+// Fills one case: face rules give directed segments between crossing edges, the segments chain
+// into closed loops, and each loop becomes a triangle fan.
+void BuildCase(int mask, CaseTable* table) {
+  auto inside = [mask](int corner) { return ((mask >> corner) & 1) != 0; };
+  // next_edge[e] = the edge that the surface boundary reaches after e when walking a loop.
+  std::array<int, kNumEdges> next_edge;
+  next_edge.fill(-1);
+  for (int axis = 0; axis < 3; ++axis) {
+    const int u = (axis + 1) % 3;
+    const int v = (axis + 2) % 3;
+    for (int side = 0; side < 2; ++side) {
+      // (u, v) in the order (0,0) (1,0) (1,1) (0,1) circles +axis counter-clockwise; the face at
+      // side 0 looks toward -axis, so its walk is reversed. A shared cube edge is then walked in
+      // opposite directions by its two faces, which is what makes segments chain head-to-tail.
+      static constexpr int kU[4] = {0, 1, 1, 0};
+      static constexpr int kV[4] = {0, 0, 1, 1};
+      std::array<int, 4> walk;
+      for (int k = 0; k < 4; ++k) {
+        const int j = side == 1 ? k : 3 - k;
+        walk[k] = (side << axis) | (kU[j] << u) | (kV[j] << v);
+      }
+      // Each +->- crossing is paired with the next -->+ crossing in walk order. Only the face's
+      // own corner signs decide this, so both cells sharing the face agree; on the ambiguous face
+      // it cuts off each inside corner separately.
+      for (int k = 0; k < 4; ++k) {
+        const int a = walk[k];
+        const int b = walk[(k + 1) % 4];
+        if (inside(a) || !inside(b)) continue;
+        for (int step = 1; step < 4; ++step) {
+          const int c = walk[(k + step) % 4];
+          const int d = walk[(k + step + 1) % 4];
+          if (inside(c) && !inside(d)) {
+            assert(next_edge[EdgeId(a, b)] == -1);
+            next_edge[EdgeId(a, b)] = EdgeId(c, d);
+            break;
+          }
+        }
+      }
+    }
+  }
+  int num_triangles = 0;
+  std::array<bool, kNumEdges> used;
+  used.fill(false);
+  for (int start = 0; start < kNumEdges; ++start) {
+    if (next_edge[start] < 0 || used[start]) continue;
+    std::vector<int> loop;
+    for (int e = start; !used[e]; e = next_edge[e]) {
+      used[e] = true;
+      loop.push_back(e);
+      assert(next_edge[e] >= 0);
+    }
+    // A loop can pass an ambiguous face twice. A fan diagonal between two vertices of one face
+    // would lie in that face, where the neighbouring cell may use the same diagonal, giving an
+    // edge with four triangles. Every loop of the table has an apex free of such diagonals.
+    const size_t n = loop.size();
+    size_t apex = 0;
+    for (; apex < n; ++apex) {
+      bool clean = true;
+      for (size_t i = 2; i + 1 < n; ++i)
+        clean = clean && !EdgesShareFace(loop[apex], loop[(apex + i) % n]);
+      if (clean) break;
+    }
+    assert(apex < n);
+    if (apex == n) apex = 0;
+    for (size_t i = 1; i + 1 < n; ++i) {
+      assert(num_triangles < kMaxTriangles);
+      table->triangles[mask][num_triangles++] = {static_cast<uint8_t>(loop[apex]),
+                                                 static_cast<uint8_t>(loop[(apex + i) % n]),
+                                                 static_cast<uint8_t>(loop[(apex + i + 1) % n])};
+    }
+  }
+  table->num_triangles[mask] = static_cast<uint8_t>(num_triangles);
+}
+
+CaseTable BuildCaseTable() {
+  CaseTable table{};
+  for (int a = 0; a < kNumCorners; ++a) {
+    for (int axis = 0; axis < 3; ++axis) {
+      if (CornerBit(a, axis)) continue;
+      const int e = EdgeId(a, a | (1 << axis));
+      table.edge_lower_corner[e] = static_cast<uint8_t>(a);
+      table.edge_axis[e] = static_cast<uint8_t>(axis);
+    }
+  }
+  for (int mask = 0; mask < 256; ++mask) BuildCase(mask, &table);
+  return table;
+}
+
+const CaseTable& GetCaseTable() {
+  // Function-local static: built once, thread-safe, and trivially destructible.
+  static const CaseTable table = BuildCaseTable();
+  return table;
+}
+
+Int3 CornerOffset(int corner) { return Int3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1); }
+
+struct EdgeKey {
+  Int3 lower;
+  int axis;
+  bool operator==(const EdgeKey& o) const { return axis == o.axis && lower == o.lower; }
+};
+
+struct EdgeKeyHash {
+  size_t operator()(const EdgeKey& k) const {
+    return Int3Hash()(k.lower) ^ (static_cast<size_t>(k.axis) * 0x9E3779B97F4A7C15ull);
+  }
+};
+
+struct Sample {
+  float value = 0.0f;
+  bool valid = false;
+};
+
+}  // namespace
+
+int MarchingCubesTriangleCount(uint8_t case_mask) {
+  return GetCaseTable().num_triangles[case_mask];
+}
+
+Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
+  Mesh mesh;
+  if (!samples.lookup) return mesh;
+  const CaseTable& table = GetCaseTable();
+
+  absl::flat_hash_map<Int3, Sample, Int3Hash, Int3Equal> cache;
+  absl::flat_hash_map<EdgeKey, uint32_t, EdgeKeyHash> edge_vertex;
+  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_cells;
+  cache.reserve(cells.size() * 2);
+  done_cells.reserve(cells.size());
+
+  auto sample_at = [&](const Int3& g) -> const Sample& {
+    auto [it, inserted] = cache.try_emplace(g);
+    if (inserted) {
+      float value = 0.0f;
+      it->second.valid = samples.lookup(g, &value) && std::isfinite(value);
+      it->second.value = value;
+    }
+    return it->second;
+  };
+
+  for (const Int3& cell : cells) {
+    if (!done_cells.insert(cell).second) continue;
+    std::array<float, kNumCorners> values;
+    int mask = 0;
+    bool complete = true;
+    for (int c = 0; c < kNumCorners; ++c) {
+      // Stop at the first missing corner: the cell is dropped anyway and lookups may be costly.
+      const Sample& s = sample_at(cell + CornerOffset(c));
+      if (!s.valid) {
+        complete = false;
+        break;
+      }
+      values[c] = s.value;
+      if (s.value < 0.0f) mask |= 1 << c;
+    }
+    if (!complete || mask == 0 || mask == 0xFF) continue;
+
+    for (int t = 0; t < table.num_triangles[mask]; ++t) {
+      std::array<uint32_t, 3> face;
+      for (int k = 0; k < 3; ++k) {
+        const int e = table.triangles[mask][t][k];
+        const int lo = table.edge_lower_corner[e];
+        const int axis = table.edge_axis[e];
+        const EdgeKey key{cell + CornerOffset(lo), axis};
+        auto [it, inserted] =
+            edge_vertex.try_emplace(key, static_cast<uint32_t>(mesh.vertices.size()));
+        if (inserted) {
+          // Only the two edge values enter, lower grid point first, so any call that sees the
+          // same values computes the same bits for this vertex.
+          const float v0 = values[lo];
+          const float v1 = values[lo | (1 << axis)];
+          const float frac = v0 / (v0 - v1);
+          std::array<float, 3> p;
+          for (int i = 0; i < 3; ++i) {
+            float coord = static_cast<float>(key.lower[i]);
+            if (i == axis) coord += frac;
+            p[i] = samples.origin_m[i] + samples.step_m * coord;
+          }
+          mesh.vertices.push_back(p);
+        }
+        face[k] = it->second;
+      }
+      if (face[0] == face[1] || face[1] == face[2] || face[0] == face[2]) continue;
+      mesh.faces.push_back(face);
+    }
+  }
+  return mesh;
+}
+
+}  // namespace rim

@@ -1,0 +1,50 @@
+// Marching cubes over a sparse set of grid cells, producing an indexed, crack-free triangle mesh.
+//
+// Cube corner numbering (used by the case mask): corner i of the cell with minimum corner g sits at
+// grid point g + (i & 1, (i >> 1) & 1, (i >> 2) & 1), so bit 0 is x, bit 1 is y and bit 2 is z.
+// Bit i of a case mask is set when corner i is inside (value < 0); values >= 0, including exactly
+// zero, count as outside (free space).
+//
+// The case table is generated from face rules rather than hand-written: every cube face resolves
+// its own ambiguity (two diagonal inside corners are kept apart), so neighbouring cells always
+// agree on the shared face and the mesh is watertight wherever all cells are present.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "rim/base/mesh.h"
+#include "rim/base/types.h"
+
+namespace rim {
+
+// A scalar field sampled on a regular world-aligned grid: value at grid point g (integer index) is
+// at world position origin_m + g * step_m. Callers give values only for the points they have.
+struct GridSamples {
+  float step_m = 0.05f;
+  Eigen::Vector3f origin_m = Eigen::Vector3f::Zero();
+  // Returns false if the point has no valid value (unobserved); then no cell touching it is
+  // meshed. A non-finite value is treated like an unobserved point.
+  std::function<bool(const Int3& g, float* value)> lookup;
+};
+
+// Runs marching cubes over the given cells (each cell named by its minimum-corner grid index; the
+// cell spans g .. g+(1,1,1)). A cell is meshed only when all 8 corner values are available;
+// repeated cells are meshed once.
+//
+// Output is indexed: a vertex lying on grid edge (g, axis) is created once and shared by all
+// triangles that use it (welded by the integer edge key, never by float position). The vertex
+// position is the linear zero crossing along the edge, computed from the two endpoint values with
+// the lower grid index first, so two independent calls that see the same values on a shared edge
+// produce bit-identical positions. Triangles are counter-clockwise seen from the positive side,
+// i.e. their normals follow the field gradient. Each grid point is looked up at most once per
+// call.
+Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples);
+
+// Number of triangles the generated case table gives for a corner sign mask (bit i set = corner i
+// negative, corner numbering as above). Exposed for tests.
+int MarchingCubesTriangleCount(uint8_t case_mask);
+
+}  // namespace rim

@@ -1,0 +1,97 @@
+#include "rim/train/point_buffer.h"
+
+#include <sstream>
+
+#include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
+
+namespace rim {
+
+PointBuffer::PointBuffer(const BufferConfig& config, uint64_t seed) : config_(config), rng_(seed) {}
+
+void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W,
+                           const std::vector<Vec3f>& origins_W) {
+  const size_t n = points_W.size();
+  const size_t keep = std::min<size_t>(n, size_t(config_.max_points_per_frame));
+  std::vector<uint32_t> idx(n);
+  for (size_t i = 0; i < n; ++i) idx[i] = uint32_t(i);
+  // Partial Fisher-Yates: the first `keep` entries become a uniform random subset.
+  for (size_t i = 0; i < keep; ++i) {
+    std::uniform_int_distribution<size_t> pick(i, n - 1);
+    std::swap(idx[i], idx[pick(rng_)]);
+  }
+  for (size_t i = 0; i < keep; ++i) {
+    points_.push_back(points_W[idx[i]]);
+    origins_.push_back(origins_W[idx[i]]);
+  }
+  while (points_.size() > size_t(config_.max_points)) {
+    std::uniform_int_distribution<size_t> pick(0, points_.size() - 1);
+    const size_t j = pick(rng_);
+    points_[j] = points_.back();
+    origins_[j] = origins_.back();
+    points_.pop_back();
+    origins_.pop_back();
+  }
+}
+
+void PointBuffer::RemoveOutside(const Vec3d& min_m, const Vec3d& max_m) {
+  const Eigen::Array3f lo = min_m.cast<float>().array(), hi = max_m.cast<float>().array();
+  std::vector<bool> keep(points_.size());
+  for (size_t i = 0; i < points_.size(); ++i)
+    keep[i] = (points_[i].array() >= lo).all() && (points_[i].array() < hi).all();
+  Filter(keep);
+}
+
+void PointBuffer::Filter(const std::vector<bool>& keep) {
+  size_t out = 0;
+  for (size_t i = 0; i < points_.size(); ++i) {
+    if (!keep[i]) continue;
+    points_[out] = points_[i];
+    origins_[out] = origins_[i];
+    ++out;
+  }
+  points_.resize(out);
+  origins_.resize(out);
+}
+
+void PointBuffer::Serialize(ByteWriter* w) const {
+  std::ostringstream rng;
+  rng << rng_;
+  w->String(rng.str());
+  // Eigen vectors are not trivially copyable types, but are three packed floats.
+  w->FloatArray(points_.empty() ? nullptr : points_[0].data(), points_.size() * 3);
+  w->FloatArray(origins_.empty() ? nullptr : origins_[0].data(), origins_.size() * 3);
+}
+
+absl::Status PointBuffer::Deserialize(ByteReader* r) {
+  std::string rng_state;
+  RIM_RETURN_IF_ERROR(r->String(&rng_state));
+  std::vector<float> p, o;
+  RIM_RETURN_IF_ERROR(r->FloatArray(&p));
+  RIM_RETURN_IF_ERROR(r->FloatArray(&o));
+  if (p.size() != o.size() || p.size() % 3 != 0)
+    return absl::DataLossError("point buffer: point and origin counts differ");
+  std::vector<Vec3f> points(p.size() / 3), origins(o.size() / 3);
+  // What AddFrame can have stored: finite rays no longer than buffer.max_range_m (Preprocess drops
+  // longer ones). Training samples along every ray, and a corrupt origin far away (or NaN) would
+  // put samples where the lattice arithmetic overflows. The slack covers the float transform.
+  const float max_range = config_.max_range_m * 1.001f + 0.01f;
+  for (size_t i = 0; i < points.size(); ++i) {
+    points[i] = Vec3f(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
+    origins[i] = Vec3f(o[3 * i], o[3 * i + 1], o[3 * i + 2]);
+    if (!points[i].allFinite() || !origins[i].allFinite() ||
+        !((points[i] - origins[i]).norm() <= max_range))
+      return absl::DataLossError(absl::StrCat("point buffer: ray ", i,
+                                              " is not finite or longer than buffer.max_range_m"));
+  }
+  std::istringstream in(rng_state);
+  std::mt19937_64 rng;
+  in >> rng;
+  if (in.fail()) return absl::DataLossError("point buffer: bad random generator state");
+  rng_ = rng;
+  points_ = std::move(points);
+  origins_ = std::move(origins);
+  return absl::OkStatus();
+}
+
+}  // namespace rim

@@ -1,0 +1,41 @@
+// The historical point buffer (§3.4 step 2, "bundle supervision"): endpoints of past rays that
+// lie in the local box, with the sensor origin each was seen from. Training samples rays from it.
+#pragma once
+
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "rim/base/binary_io.h"
+#include "rim/base/types.h"
+#include "rim/config/config.h"
+
+namespace rim {
+
+class PointBuffer {
+ public:
+  PointBuffer(const BufferConfig& config, uint64_t seed);
+
+  // Adds a frame's inside points (world frame), keeping at most max_points_per_frame of them
+  // (uniform random subset), then drops random points while over max_points.
+  void AddFrame(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W);
+  // Drops points whose endpoint left the box [min, max).
+  void RemoveOutside(const Vec3d& min_m, const Vec3d& max_m);
+  // Drops points where keep[i] is false.
+  void Filter(const std::vector<bool>& keep);
+
+  size_t size() const { return points_.size(); }
+  const std::vector<Vec3f>& points() const { return points_; }
+  const std::vector<Vec3f>& origins() const { return origins_; }
+
+  void Serialize(ByteWriter* w) const;
+  absl::Status Deserialize(ByteReader* r);
+
+ private:
+  BufferConfig config_;
+  std::mt19937_64 rng_;
+  std::vector<Vec3f> points_;
+  std::vector<Vec3f> origins_;
+};
+
+}  // namespace rim

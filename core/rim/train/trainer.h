@@ -1,0 +1,74 @@
+// One training iteration (§3.4 step 3): sample rays, encode, decode, loss, backward, then Adam on
+// the decoder and on only the voxels the batch touched.
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "rim/base/worker_pool.h"
+#include "rim/config/config.h"
+#include "rim/map/local_map.h"
+#include "rim/model/decoder.h"
+#include "rim/model/encoder.h"
+#include "rim/train/mlp_step.h"
+#include "rim/train/sampler.h"
+#include "rim/train/train_step.h"
+
+namespace rim {
+
+struct IterationTiming {
+  double sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0, step_s = 0;
+};
+
+// Lazy Adam on touched rows [begin, end) of one level: each row moves with its own step count and
+// is marked as holding data. Rows are distinct slots, so disjoint ranges may run concurrently.
+void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
+                       const SparseGradient::Level& g, size_t begin, size_t end,
+                       LocalMap::Level* lv);
+
+class Trainer {
+ public:
+  Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder);
+
+  // Runs one iteration; returns the loss (0 when there is nothing to learn from yet).
+  absl::StatusOr<float> Iterate(const PointBuffer& buffer, const OutsideRays& outside,
+                                bool train_decoder, IterationTiming* timing);
+
+  // One iteration on the given samples instead of sampled ones (the same steps after sampling):
+  // what tests use to run this trainer and the reference on identical batches.
+  absl::StatusOr<float> IterateOn(const SampleBatch& batch, bool train_decoder,
+                                  IterationTiming* timing);
+
+  Sampler& sampler() { return sampler_; }
+  // The training threads, for other work of the mapper's between iterations (never during one).
+  WorkerPool& pool() { return pool_; }
+  const SampleBatch& last_batch() const { return batch_; }
+
+ private:
+  absl::StatusOr<float> TrainOnBatch(bool train_decoder, IterationTiming* timing);
+  void AddEikonalProbes();
+  // Gradient scatter, lazy Adam on the touched rows and observed marking, in one pool region.
+  void UpdateFeatures(const float* grad_features);
+  void MarkObserved();
+
+  MapperConfig config_;
+  LocalMap* map_;
+  Decoder* decoder_;
+  Sampler sampler_;
+  SampleBatch batch_;
+  std::vector<float> xyz_;  // labelled samples, then eikonal probes
+  LocalEncoding encoding_;
+  std::vector<float> features_;
+  MlpTrainStep mlp_;
+  TrainStepOutput step_out_;
+  SparseGradient grad_;
+  AdamBiasTable bias_;
+  std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: which levels are scattered
+  bool grad_ready_ = false;
+  std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
+  WorkerPool pool_;  // last: its threads stop before the buffers they use go away
+};
+
+}  // namespace rim
