@@ -3,12 +3,15 @@
 // of the paper's protocol ("standard") and without them ("strict"), as a table or as JSON.
 // A PLY without faces (e.g. rim_sim's gt_observed.ply) is taken as a point cloud: its vertices are
 // used as they are instead of area samples ("gt_kind": "points").
+// --box HX,HY,ZMIN,ZMAX --seq DIR evaluates both inside the union of the local boxes about the
+// sequence's sensor positions: what a mapper with that local map could have reconstructed.
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <thread>
 #include <vector>
@@ -17,7 +20,9 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "rim/eval/box_union.h"
 #include "rim/eval/mesh_eval.h"
+#include "rim/io/dataset.h"
 #include "rim/io/mesh_io.h"
 
 namespace {
@@ -30,7 +35,8 @@ using rim::eval::Metrics;
 
 constexpr char kUsage[] =
     "usage: rim_eval PRED.ply GT.ply [--json] [--samples N] [--threads N] [--seed S]\n"
-    "                [--voxel M] [--no-crop]\n"
+    "                [--voxel M] [--no-crop] [--region x0,y0,z0,x1,y1,z1]\n"
+    "                [--box HX,HY,ZMIN,ZMAX --seq DIR]\n"
     "  --json         print one JSON object instead of the table\n"
     "  --samples N    points sampled on each mesh before voxel averaging (default 1e7)\n"
     "  --threads N    worker threads (default: all cores)\n"
@@ -40,6 +46,13 @@ constexpr char kUsage[] =
     "  --region x0,y0,z0,x1,y1,z1\n"
     "                 evaluate only inside this box: both meshes are clipped to it first\n"
     "                 (a point cloud keeps its points inside it)\n"
+    "  --box HX,HY,ZMIN,ZMAX --seq DIR\n"
+    "                 evaluate only inside the union over the frames of the dataset DIR of the\n"
+    "                 boxes |x - sx| < HX, |y - sy| < HY, sz + ZMIN <= z < sz + ZMAX about each\n"
+    "                 sensor position (sx, sy, sz), world axes (rim_sim's --observed-box): both\n"
+    "                 sides' samples and points outside it are left out. With rim_sim's\n"
+    "                 gt_observed.ply from --observed-box none, this scores what a mapper with\n"
+    "                 that local map could have seen, from near or far\n"
     "A PLY without faces is a point cloud: its vertices are used as they are (voxel-averaged, not\n"
     "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.\n";
 
@@ -49,6 +62,9 @@ struct Args {
   EvalOptions options;
   bool has_region = false;
   std::array<float, 3> region_min{}, region_max{};
+  bool has_box = false;
+  double box[4] = {0, 0, 0, 0};  // HX, HY, ZMIN, ZMAX
+  std::string seq_dir;           // empty: no --seq
 };
 
 // Returns false (after printing why) on bad arguments.
@@ -114,6 +130,27 @@ bool ParseArgs(int argc, char** argv, Args* args) {
       for (int k = 0; k < 3; ++k)
         if (!(args->region_min[k] < args->region_max[k])) return bad_value(v);
       args->has_region = true;
+    } else if (arg == "--box") {
+      if (!next_value(&v)) return false;
+      std::vector<std::string> parts = absl::StrSplit(v, ',');
+      if (parts.size() != 4) return bad_value(v);
+      for (int k = 0; k < 4; ++k) {
+        if (!absl::SimpleAtod(parts[k], &args->box[k]) || !std::isfinite(args->box[k])) {
+          return bad_value(v);
+        }
+      }
+      if (!(args->box[0] > 0 && args->box[1] > 0 && args->box[2] < args->box[3])) {
+        std::fprintf(stderr,
+                     "rim_eval: --box HX,HY,ZMIN,ZMAX needs HX > 0, HY > 0 and ZMIN < ZMAX, got "
+                     "'%s'\n%s",
+                     v.c_str(), kUsage);
+        return false;
+      }
+      args->has_box = true;
+    } else if (arg == "--seq") {
+      if (!next_value(&v)) return false;
+      if (v.empty()) return bad_value(v);
+      args->seq_dir = v;
     } else if (arg == "--voxel") {
       if (!next_value(&v)) return false;
       if (!absl::SimpleAtod(v, &args->options.voxel_m) || !(args->options.voxel_m >= 0)) {
@@ -131,9 +168,29 @@ bool ParseArgs(int argc, char** argv, Args* args) {
                  positional.size(), kUsage);
     return false;
   }
+  if (args->has_box != !args->seq_dir.empty()) {
+    std::fprintf(stderr,
+                 args->has_box ? "rim_eval: --box needs --seq DIR, the sequence whose sensor "
+                                 "positions place the boxes\n%s"
+                               : "rim_eval: --seq needs --box HX,HY,ZMIN,ZMAX\n%s",
+                 kUsage);
+    return false;
+  }
   args->pred_path = positional[0];
   args->gt_path = positional[1];
   return true;
+}
+
+// The union of --box about the sensor positions of --seq's frames.
+absl::StatusOr<std::shared_ptr<const rim::eval::BoxUnion>> LoadBoxUnion(const Args& args) {
+  absl::StatusOr<std::unique_ptr<rim::io::Dataset>> seq = rim::io::Dataset::Open(args.seq_dir);
+  if (!seq.ok()) return seq.status();
+  std::vector<Eigen::Vector3d> centres;
+  for (const Eigen::Isometry3d& pose : (*seq)->poses()) centres.push_back(pose.translation());
+  absl::StatusOr<rim::eval::BoxUnion> box_union =
+      rim::eval::BoxUnion::Create(args.box[0], args.box[1], args.box[2], args.box[3], centres);
+  if (!box_union.ok()) return box_union.status();
+  return std::make_shared<const rim::eval::BoxUnion>(*std::move(box_union));
 }
 
 std::string JsonString(const std::string& s) {
@@ -170,6 +227,16 @@ std::string AreaJson(InputKind kind, double area_m2) {
   return kind == InputKind::kPoints ? "null" : JsonNumber(area_m2, 4);
 }
 
+// The box union of --box and --seq, or null.
+std::string BoxJson(const Args& args) {
+  const rim::eval::BoxUnion* u = args.options.box_union.get();
+  if (u == nullptr) return "null";
+  return absl::StrCat("{\"hx\": ", JsonNumber(u->hx(), 4), ", \"hy\": ", JsonNumber(u->hy(), 4),
+                      ", \"z_min\": ", JsonNumber(u->z_min(), 4),
+                      ", \"z_max\": ", JsonNumber(u->z_max(), 4), ", \"frames\": ", u->size(),
+                      ", \"seq\": ", JsonString(args.seq_dir), "}");
+}
+
 std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
   const EvalOptions& o = args.options;
   return absl::StrCat(
@@ -189,7 +256,7 @@ std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
       ", \"fscore_threshold_cm\": ", JsonNumber(100 * o.fscore_m, 3),
       ", \"crop_to_gt\": ", o.crop_to_gt ? "true" : "false",
       ", \"crop_margin_cm\": ", JsonNumber(100 * o.crop_margin_m, 3), ", \"seed\": ", o.seed, "}",
-      ",\n  \"seconds\": ", JsonNumber(seconds, 3), "\n}\n");
+      ",\n  \"box\": ", BoxJson(args), ",\n  \"seconds\": ", JsonNumber(seconds, 3), "\n}\n");
 }
 
 std::string TableRow(const char* name, const Metrics& m) {
@@ -233,6 +300,12 @@ std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
       &out, "F-score threshold %g cm; crop to GT box: %s; seed %d; %.1f s\n", 100 * o.fscore_m,
       o.crop_to_gt ? absl::StrFormat("on (+%g cm)", 100 * o.crop_margin_m) : std::string("off"),
       o.seed, seconds);
+  if (const rim::eval::BoxUnion* u = o.box_union.get()) {
+    absl::StrAppendFormat(&out,
+                          "box union: |x - sx| < %g, |y - sy| < %g, sz %+g <= z < sz %+g m about "
+                          "the %d sensor positions of %s\n",
+                          u->hx(), u->hy(), u->z_min(), u->z_max(), u->size(), args.seq_dir);
+  }
   return out;
 }
 
@@ -247,6 +320,15 @@ int main(int argc, char** argv) {
     return 2;
   }
   const auto start = std::chrono::steady_clock::now();
+  if (args.has_box) {
+    absl::StatusOr<std::shared_ptr<const rim::eval::BoxUnion>> box_union = LoadBoxUnion(args);
+    if (!box_union.ok()) {
+      std::fprintf(stderr, "rim_eval: cannot place --box along --seq %s: %s\n",
+                   args.seq_dir.c_str(), std::string(box_union.status().message()).c_str());
+      return 1;
+    }
+    args.options.box_union = *std::move(box_union);
+  }
   absl::StatusOr<rim::Mesh> pred = rim::ReadMeshPly(args.pred_path);
   if (!pred.ok()) {
     std::fprintf(stderr, "rim_eval: cannot read prediction: %s\n",

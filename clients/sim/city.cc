@@ -6,6 +6,9 @@
 #include <utility>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "rim/base/status_macros.h"
 #include "sim/rng.h"
 
 namespace rim::sim {
@@ -20,7 +23,6 @@ constexpr double kParkOffset = 3.45;  // parked car centre
 constexpr double kPoleOffset = 4.9;
 constexpr double kTreeOffset = 5.2;
 constexpr double kWalkerMin = 6.0, kWalkerMax = 7.8;  // sidewalk band walkers use
-constexpr double kFrontage = 9.5;  // buildings start at least this far from a centre line
 // Street furniture stays this far (along the street) from intersection centres.
 constexpr double kIntersectionClear = 14.0;
 // Streets (centre lines) at x = i * pitch for i in [kMinI, kMaxI], y = j * pitch for j in
@@ -74,7 +76,8 @@ struct Footprint2d {
 
 class CityBuilder {
  public:
-  explicit CityBuilder(uint64_t seed) : rng_(HashSeed(seed, 0xC17Eull)) {}
+  CityBuilder(uint64_t seed, const BuildingOptions& buildings)
+      : rng_(HashSeed(seed, 0xC17Eull)), buildings_(buildings) {}
 
   Scene Build() {
     scene_.has_ground = true;
@@ -124,13 +127,16 @@ class CityBuilder {
         }
         const double width = rng_.Uniform(8.0, 25.0);
         const double depth = rng_.Uniform(8.0, 20.0);
-        const double height = rng_.Uniform(4.0, 20.0);
-        const double setback = rng_.Uniform(0.0, 2.5);
+        const double height = rng_.Uniform(buildings_.height_min, buildings_.height_max);
+        const double setback = rng_.Uniform(buildings_.setback_min, buildings_.setback_max);
         const double yaw_jitter = rng_.Bernoulli(0.25) ? rng_.Uniform(-35.0, 35.0) * kDeg
                                                        : rng_.Uniform(-4.0, 4.0) * kDeg;
         const double yaw = dir_angle + yaw_jitter;
-        const Vec2 half(0.5 * std::min(width, side_len - u), 0.5 * depth);
-        Vec2 center = starts[k] + (u + half.x()) * along + (setback + half.y()) * inward;
+        // The set-back holds on the side streets too: a corner building starts and ends that far
+        // inside the frontage.
+        const double start = std::max(u, setback);
+        const Vec2 half(0.5 * std::min(width, side_len - setback - start), 0.5 * depth);
+        Vec2 center = starts[k] + (start + half.x()) * along + (setback + half.y()) * inward;
         // Push the rotated footprint inward until it clears the street frontage.
         auto corners = RectCorners(center, half, yaw);
         double worst = 0.0;
@@ -139,8 +145,10 @@ class CityBuilder {
         center -= worst * inward;
         corners = RectCorners(center, half, yaw);
         bool ok = half.x() >= 3.0;
+        const double inset = setback - 1e-9;  // the pushed corner lies on the line, give or take
         for (const Vec2& p : corners) {
-          ok = ok && p.x() >= lo.x() && p.x() <= hi.x() && p.y() >= lo.y() && p.y() <= hi.y();
+          ok = ok && p.x() >= lo.x() + inset && p.x() <= hi.x() - inset &&
+               p.y() >= lo.y() + inset && p.y() <= hi.y() - inset;
         }
         for (const Footprint2d& f : placed) ok = ok && Separated(f.corners, corners, 0.5);
         if (!ok) {
@@ -149,7 +157,7 @@ class CityBuilder {
         }
         placed.push_back({corners});
         Add(MakeBoxZ(center, half, yaw, -kSink, height), Material::kBuilding);
-        u += 2 * half.x() + rng_.Uniform(0.5, 4.0);
+        u = start + 2 * half.x() + rng_.Uniform(0.5, 4.0);
       }
     }
   }
@@ -237,6 +245,7 @@ class CityBuilder {
   }
 
   Rng rng_;
+  BuildingOptions buildings_;
   Scene scene_;
 };
 
@@ -279,9 +288,27 @@ void LoopPath::Eval(double s, Vec2* position, double* heading) const {
   }
 }
 
+absl::Status ValidateCityOptions(const CityOptions& options) {
+  if (options.walkers < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("CityOptions.walkers must be >= 0, got ", options.walkers));
+  }
+  const BuildingOptions& b = options.buildings;
+  auto check = [](const char* range, double min, double max, double lo, double hi) {
+    if (std::isfinite(min) && std::isfinite(max) && lo <= min && min <= max && max <= hi) {
+      return absl::OkStatus();
+    }
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "CityOptions.buildings.%s_min, %s_max must satisfy %g <= min <= max <= %g, got %g, %g",
+        range, range, lo, hi, min, max));
+  };
+  RIM_RETURN_IF_ERROR(check("setback", b.setback_min, b.setback_max, 0.0, kMaxBuildingSetback));
+  return check("height", b.height_min, b.height_max, kMinBuildingHeight, kMaxBuildingHeight);
+}
+
 City GenerateCity(const CityOptions& options) {
   City city;
-  city.scene = CityBuilder(options.seed).Build();
+  city.scene = CityBuilder(options.seed, options.buildings).Build();
   const Vec2 loop_center(kBlockPitch, 0.5 * kBlockPitch);
   const Vec2 loop_half(kBlockPitch, 0.5 * kBlockPitch);
   // Counter-clockwise travel keeps the right-hand lane on the outside of the loop.

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "absl/status/status.h"
 #include "sim/geometry.h"
 #include "sim/scene.h"
 
@@ -40,18 +41,37 @@ struct Walker {
   double height = 1.8;
 };
 
-struct CityOptions {
-  uint64_t seed = 1;
-  // Pedestrians, spread evenly at random over the sidewalks all round the drive loop (so that a
-  // shorter run sees the same walkers as the start of a longer one).
-  int walkers = 0;
-};
-
 // Street layout constants (metres), shared with the tests.
 inline constexpr double kBlockPitch = 80.0;        // distance between parallel street centre lines
 inline constexpr double kLaneOffset = 1.75;        // sensor path: right-hand lane of a 2-lane road
 inline constexpr double kLoopCornerRadius = 10.0;  // street centre line at the loop's corners
 inline constexpr double kFrameRateHz = 10.0;
+// Buildings stand at least this far from a street centre line (plus their set-back).
+inline constexpr double kFrontage = 9.5;
+
+// The ranges buildings are drawn from, uniformly (metres). The set-back is how far a building's
+// facades stand beyond the street frontage (kFrontage from the street centre line), on every
+// street the building faces; the height is that of its roof above the ground.
+struct BuildingOptions {
+  double setback_min = 0.0, setback_max = 3.5;  // facades 9.5-13 m from the centre line
+  double height_min = 4.0, height_max = 25.0;
+};
+
+struct CityOptions {
+  uint64_t seed = 1;
+  // Pedestrians, spread evenly at random over the sidewalks all round the drive loop (so that a
+  // shorter run sees the same walkers as the start of a longer one).
+  int walkers = 0;
+  BuildingOptions buildings;
+};
+
+inline constexpr double kMaxBuildingSetback = 20.0;
+inline constexpr double kMinBuildingHeight = 1.0, kMaxBuildingHeight = 100.0;
+
+// InvalidArgument naming the field unless walkers >= 0 and the building ranges are finite with
+// 0 <= setback_min <= setback_max <= kMaxBuildingSetback and
+// kMinBuildingHeight <= height_min <= height_max <= kMaxBuildingHeight.
+absl::Status ValidateCityOptions(const CityOptions& options);
 
 struct City {
   // The static world: ground plane at z = 0 and every solid except the walkers.
@@ -63,8 +83,9 @@ struct City {
   std::vector<Walker> walkers;
 };
 
-// Deterministic for a given options.seed. The static scene depends on the seed only, so ground
-// truth is the same whether or not walkers are added.
+// Deterministic for given options, which must pass ValidateCityOptions. The static scene depends
+// on the seed and the building ranges only, so ground truth is the same whether or not walkers are
+// added. The building ranges change the values drawn for each building, not how many are drawn.
 City GenerateCity(const CityOptions& options);
 
 // World-from-LiDAR poses (x forward, y left, z up) of `frames` frames, `step` metres apart along

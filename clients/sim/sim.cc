@@ -178,6 +178,7 @@ absl::Status OutOfVoxelRange(const Vec3& p) {
 }
 
 bool InObservedBox(const Vec3& p, const Vec3& sensor, const ObservedBox& box) {
+  if (!box.enabled) return true;
   return std::abs(p.x() - sensor.x()) < box.hx && std::abs(p.y() - sensor.y()) < box.hy &&
          p.z() >= sensor.z() + box.z_min && p.z() < sensor.z() + box.z_max;
 }
@@ -193,6 +194,8 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   CityOptions city_options;
   city_options.seed = o.seed;
   city_options.walkers = o.walkers;
+  city_options.buildings = o.buildings;
+  RIM_RETURN_IF_ERROR(ValidateCityOptions(city_options));
   const City city = GenerateCity(city_options);
   const std::vector<Eigen::Isometry3d> poses = CityTrajectory(city, o.frames, step, kSensorHeight);
 
@@ -234,7 +237,7 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
     }
     summary.points += points.size();
     RIM_RETURN_IF_ERROR(WriteKittiScan(Join(velodyne, absl::StrFormat("%06d.bin", k)), points));
-    // The observed surface: noise-free hits on static geometry inside the frame's mapping box.
+    // The observed surface: noise-free hits on static geometry (inside the frame's mapping box).
     const Vec3 sensor = poses[k].translation();
     for (const SensorTruth& t : truth) {
       if (t.primitive >= num_static || !InObservedBox(t.world, sensor, o.observed_box)) continue;
@@ -250,6 +253,23 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   RIM_RETURN_IF_ERROR(WriteGroundTruth(o.out_dir, gt));
   RIM_RETURN_IF_ERROR(WritePointCloudPly(Join(o.out_dir, "gt_observed.ply"), observed_points));
 
+  // The box as scene.json and README.txt (in its indented column) describe it.
+  const ObservedBox& box = o.observed_box;
+  std::string box_json = "null";
+  std::string box_text = absl::StrFormat(R"(, in every frame and
+                       wherever it lies (no mapping box: --observed-box none); all frames
+                       merged and averaged per %.6g m world-aligned voxel.)",
+                                         kObservedVoxel);
+  if (box.enabled) {
+    box_json = absl::StrFormat(R"({"hx_m": %.6g, "hy_m": %.6g, "z_min_m": %.6g, "z_max_m": %.6g,
+            "about": "each frame's sensor position, world axes"})",
+                               box.hx, box.hy, box.z_min, box.z_max);
+    box_text = absl::StrFormat(R"( that lies in its
+                       frame's local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
+                       sz %+.6g <= z < sz %+.6g m about the sensor position (sx, sy, sz), world
+                       axes; all frames merged and averaged per %.6g m world-aligned voxel.)",
+                               box.hx, box.hy, box.z_min, box.z_max, kObservedVoxel);
+  }
   const std::string json = absl::StrFormat(
       R"({
   "generator": "rim_sim",
@@ -261,6 +281,13 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   "frame_rate_hz": %.6g,
   "noise_stddev_m": %.6g,
   "walkers": %d,
+  "buildings": {
+    "setback_min_m": %.6g,
+    "setback_max_m": %.6g,
+    "height_min_m": %.6g,
+    "height_max_m": %.6g,
+    "setback_from": "the street frontage, %.6g m from the street centre line"
+  },
   "lidar": {
     "beams": %d,
     "columns": %d,
@@ -286,19 +313,18 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
     "kind": "points",
     "points": %d,
     "voxel_m": %.6g,
-    "box": {"hx_m": %.6g, "hy_m": %.6g, "z_min_m": %.6g, "z_max_m": %.6g,
-            "about": "each frame's sensor position, world axes"},
+    "box": %s,
     "noise_free": true,
     "includes_walkers": false
   }
 }
 )",
-      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, lidar.beams, lidar.columns,
-      lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
-      gt_options.region_min.x(), gt_options.region_min.y(), gt_options.region_max.x(),
-      gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(), gt.faces.size(),
-      observed_points.size(), kObservedVoxel, o.observed_box.hx, o.observed_box.hy,
-      o.observed_box.z_min, o.observed_box.z_max);
+      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, o.buildings.setback_min,
+      o.buildings.setback_max, o.buildings.height_min, o.buildings.height_max, kFrontage,
+      lidar.beams, lidar.columns, lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range,
+      lidar.max_range, kSensorHeight, gt_options.region_min.x(), gt_options.region_min.y(),
+      gt_options.region_max.x(), gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(),
+      gt.faces.size(), observed_points.size(), kObservedVoxel, box_json);
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
 
   const std::string readme = absl::StrFormat(
@@ -321,22 +347,20 @@ Layout: KITTI odometry.
                        are cut out of the ground and of roofs, and faces inside solids are dropped.
   gt_observed.ply      the surface the LiDAR actually saw, as a point cloud (binary PLY, float
                        x, y, z, world frame, no faces): the exact, noise-free hit of every return
-                       on the static scene (returns from walkers left out) that lies in its
-                       frame's local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
-                       sz %+.6g <= z < sz %+.6g m about the sensor position (sx, sy, sz), world
-                       axes; all frames merged and averaged per %.6g m world-aligned voxel.
+                       on the static scene (returns from walkers left out)%s
   scene.json           the generation parameters.
 
 Sensor: %d beams evenly spaced from +%.3g to %.3g deg, %d columns, range %.3g..%.3g m,
 mounted %.3g m above the ground. Range noise: Gaussian, stddev %.6g m, added along each ray.
 Drive: %d frames, %.6g m apart, counter-clockwise round a 2 x 1 ring of 80 m blocks in the
-right-hand lane. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
+right-hand lane. Buildings: %.6g..%.6g m high, facades set back %.6g..%.6g m beyond %.6g m from
+the street centre lines. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
 only, not in gt.ply).
 )",
-      o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, o.observed_box.hx,
-      o.observed_box.hy, o.observed_box.z_min, o.observed_box.z_max, kObservedVoxel, lidar.beams,
+      o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, box_text, lidar.beams,
       lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
-      kSensorHeight, o.noise, o.frames, step, o.walkers);
+      kSensorHeight, o.noise, o.frames, step, o.buildings.height_min, o.buildings.height_max,
+      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.walkers);
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
   summary.frames = o.frames;
   return summary;

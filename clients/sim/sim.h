@@ -1,7 +1,8 @@
 // rim_sim: writes a synthetic dataset with ground truth.
 //
 //   rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
-//           [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX] [--threads T]
+//           [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX|none]
+//           [--building-setback MIN,MAX] [--building-height MIN,MAX] [--threads T]
 //   rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 //
 // city: a procedural city scanned by a 64-beam spinning LiDAR driving round a loop of streets,
@@ -10,8 +11,9 @@
 // room: a furnished room seen by a 320x240 depth camera, written in the 7-Scenes layout
 //       (frame-NNNNNN.depth.png, frame-NNNNNN.pose.txt, camera-intrinsics.txt) plus gt.ply.
 // Both also write gt_observed.ply, the surface the sensor actually saw: the noise-free hits on the
-// static scene (city: only those inside each frame's local mapping box), averaged per 1 cm voxel,
-// as a point cloud; and scene.json (the parameters) and README.txt (the conventions).
+// static scene (city: only those inside each frame's local mapping box, unless it is disabled),
+// averaged per 1 cm voxel, as a point cloud; and scene.json (the parameters) and README.txt (the
+// conventions).
 #pragma once
 
 #include <cstdint>
@@ -20,6 +22,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "sim/city.h"
 
 namespace rim::sim {
 
@@ -27,10 +30,11 @@ enum class SceneKind { kCity, kRoom };
 
 // City: the local mapping box of a frame, about the sensor position along the world axes (the
 // sensor's heading is ignored): |x - sx| < hx, |y - sy| < hy, sz + z_min <= z < sz + z_max. The
-// defaults are the maicity preset's local map.
+// defaults are the maicity preset's local map. Disabled, every hit of every frame is kept.
 struct ObservedBox {
   double hx = 10.0, hy = 10.0;
   double z_min = -3.0, z_max = 3.0;
+  bool enabled = true;
 };
 
 struct SimOptions {
@@ -44,7 +48,8 @@ struct SimOptions {
   int columns = 1800;        // city only: LiDAR azimuth steps per revolution
   double gt_margin = -1;     // city only: gt.ply covers the drive's bounds plus this; <0: max range
   ObservedBox observed_box;  // city only: what of each frame goes into gt_observed.ply
-  int threads = 0;           // 0: all hardware threads
+  BuildingOptions buildings;  // city only: set-back and height ranges
+  int threads = 0;            // 0: all hardware threads
 };
 
 struct SimSummary {

@@ -2,6 +2,7 @@
 #include <cmath>
 #include <set>
 #include <string>
+#include <vector>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -38,12 +39,29 @@ absl::Status ParseDouble(absl::string_view flag, absl::string_view value, double
   return absl::OkStatus();
 }
 
+// MIN,MAX with lo <= MIN <= MAX <= hi.
+absl::Status ParseRange(absl::string_view flag, absl::string_view value, double lo, double hi,
+                        double* min, double* max) {
+  const std::vector<std::string> parts = absl::StrSplit(value, ',');
+  double v[2];
+  bool ok = parts.size() == 2;
+  for (size_t i = 0; ok && i < 2; ++i) {
+    ok = absl::SimpleAtod(parts[i], &v[i]) && std::isfinite(v[i]);
+  }
+  if (!ok || !(lo <= v[0] && v[0] <= v[1] && v[1] <= hi)) {
+    return BadValue(flag, value, absl::StrFormat("MIN,MAX with %g <= MIN <= MAX <= %g", lo, hi));
+  }
+  *min = v[0];
+  *max = v[1];
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 std::string SimUsage() {
   return R"(usage: rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
-                [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX]
-                [--threads T]
+                [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX|none]
+                [--building-setback MIN,MAX] [--building-height MIN,MAX] [--threads T]
        rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 
 Writes a synthetic dataset with its ground-truth mesh (gt.ply) and the observed surface
@@ -67,7 +85,14 @@ cloud without faces):
   --observed-box HX,HY,ZMIN,ZMAX
                      city: gt_observed.ply keeps of each frame only the hits with |x - sx| < HX,
                      |y - sy| < HY and sz + ZMIN <= z < sz + ZMAX about the sensor position
-                     (sx, sy, sz), world axes: the local mapping box (default 10,10,-3,3)
+                     (sx, sy, sz), world axes: the local mapping box (default 10,10,-3,3);
+                     none keeps every hit of every frame, also what was only seen from afar
+  --building-setback MIN,MAX
+                     city: building facades stand MIN to MAX metres back from the street
+                     frontage, which is 9.5 m from the street centre line (default 0,3.5;
+                     0 <= MIN <= MAX <= 20)
+  --building-height MIN,MAX
+                     city: building heights in metres (default 4,25; 1 <= MIN <= MAX <= 100)
   --threads T        worker threads (default: all cores); the output does not depend on it
 
 Files that an earlier rim_sim run left in DIR (frames, index files, gt.ply, gt_observed.ply) are
@@ -95,9 +120,19 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
       value = arg.substr(eq + 1);
       arg = arg.substr(0, eq);
     } else {
-      static const std::set<std::string> kKnown = {
-          "--scene", "--out",     "--frames",    "--noise",        "--walkers", "--seed",
-          "--step",  "--columns", "--gt-margin", "--observed-box", "--threads"};
+      static const std::set<std::string> kKnown = {"--scene",
+                                                   "--out",
+                                                   "--frames",
+                                                   "--noise",
+                                                   "--walkers",
+                                                   "--seed",
+                                                   "--step",
+                                                   "--columns",
+                                                   "--gt-margin",
+                                                   "--observed-box",
+                                                   "--building-setback",
+                                                   "--building-height",
+                                                   "--threads"};
       if (kKnown.count(arg) == 0) {
         return absl::InvalidArgumentError(absl::StrCat("unknown flag '", arg, "'"));
       }
@@ -139,6 +174,8 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
     } else if (arg == "--gt-margin") {
       RIM_RETURN_IF_ERROR(
           ParseDouble(arg, value, 0.0, 10000.0, true, &o.gt_margin, "in [0, 10000] m"));
+    } else if (arg == "--observed-box" && value == "none") {
+      o.observed_box.enabled = false;
     } else if (arg == "--observed-box") {
       const std::vector<std::string> parts = absl::StrSplit(value, ',');
       double v[4];
@@ -148,10 +185,16 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
       }
       if (!ok || !(v[0] > 0) || !(v[1] > 0) || !(v[2] < v[3])) {
         return BadValue(arg, value,
-                        "HX,HY,ZMIN,ZMAX in metres with HX, HY > 0 and ZMIN < ZMAX (|each| <= "
-                        "10000)");
+                        "none or HX,HY,ZMIN,ZMAX in metres with HX, HY > 0 and ZMIN < ZMAX "
+                        "(|each| <= 10000)");
       }
       o.observed_box = {v[0], v[1], v[2], v[3]};
+    } else if (arg == "--building-setback") {
+      RIM_RETURN_IF_ERROR(ParseRange(arg, value, 0.0, kMaxBuildingSetback, &o.buildings.setback_min,
+                                     &o.buildings.setback_max));
+    } else if (arg == "--building-height") {
+      RIM_RETURN_IF_ERROR(ParseRange(arg, value, kMinBuildingHeight, kMaxBuildingHeight,
+                                     &o.buildings.height_min, &o.buildings.height_max));
     } else if (arg == "--threads") {
       RIM_RETURN_IF_ERROR(ParseInt(arg, value, 1, 256, &o.threads, "an integer in [1, 256]"));
     } else {
@@ -160,7 +203,8 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
   }
   if (!have_out) return absl::InvalidArgumentError("--out DIR is required");
   if (o.scene == SceneKind::kRoom) {
-    for (const char* city_only : {"--walkers", "--columns", "--gt-margin", "--observed-box"}) {
+    for (const char* city_only : {"--walkers", "--columns", "--gt-margin", "--observed-box",
+                                  "--building-setback", "--building-height"}) {
       if (given.count(city_only)) {
         return absl::InvalidArgumentError(absl::StrCat(city_only, " only applies to --scene city"));
       }

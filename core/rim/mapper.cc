@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/status_macros.h"
+#include "rim/map/deferred_points.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
 #include "rim/map/submap_store.h"
@@ -42,6 +43,7 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   saver_ = std::make_unique<SlabSaver>(store_.get(), config.submap.background_save);
   decoder_ = std::make_unique<Decoder>(geometry_->encoding_dim(), config.decoder);
   buffer_ = std::make_unique<PointBuffer>(config.buffer, config.sampler.seed ^ 0x5bd1e995ull);
+  deferred_ = std::make_unique<DeferredPoints>(*geometry_, config.grid, config.deferred);
   trainer_ = std::make_unique<Trainer>(config, local_map_.get(), decoder_.get());
   outside_ = std::make_unique<OutsideRaysHolder>();
 }
@@ -81,10 +83,10 @@ absl::Status Mapper::ValidateScan(const PosedScan& scan) {
   return absl::OkStatus();
 }
 
-void Mapper::SlideTo(const Vec3d& position_W) {
-  if (local_map_->placed() && !config_.grid.sliding) return;
+bool Mapper::SlideTo(const Vec3d& position_W) {
+  if (local_map_->placed() && !config_.grid.sliding) return false;
   const Int3 origin = geometry_->BoxOriginFor(position_W);
-  if (local_map_->placed() && origin == local_map_->coarse_origin()) return;
+  if (local_map_->placed() && origin == local_map_->coarse_origin()) return false;
   // Leaving slabs go to the saver thread; before reading entering slabs from the store, wait for
   // earlier writes so that a slab that left and comes back is read as it was saved.
   saver_->Flush();
@@ -94,9 +96,10 @@ void Mapper::SlideTo(const Vec3d& position_W) {
       [&reader](int l, const Int3& g, int n, float* f, uint8_t* flags) {
         reader.ReadRun(l, g, n, f, flags);
       });
+  return true;
 }
 
-void Mapper::Preprocess(const PosedScan& scan) {
+void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
   const Eigen::Isometry3f T = scan.T_world_sensor.cast<float>();
   const Vec3f sensor_W = T.translation();
   const Vec3d lo = local_map_->min_m(), hi = local_map_->max_m();
@@ -124,14 +127,31 @@ void Mapper::Preprocess(const PosedScan& scan) {
       outside.origins_W.push_back(o_W);
     }
   }
+  // Deferred rays that the box has just reached join the buffer as they are, and are marked like
+  // the scan's inside rays (their endpoints observed, their part inside the box seen free).
+  std::vector<Vec3f> reached_p, reached_o;
+  if (box_moved) deferred_->TakeInside(lo, hi, &reached_p, &reached_o);
+  const std::vector<Vec3f>* mark_p = &inside_p;
+  const std::vector<Vec3f>* mark_o = &inside_o;
+  std::vector<Vec3f> all_p, all_o;
+  if (!reached_p.empty()) {
+    all_p = inside_p;
+    all_o = inside_o;
+    all_p.insert(all_p.end(), reached_p.begin(), reached_p.end());
+    all_o.insert(all_o.end(), reached_o.begin(), reached_o.end());
+    mark_p = &all_p;
+    mark_o = &all_o;
+  }
   // On the training threads, idle until the first iteration. Rays ending outside the box crossed
-  // it as free space up to the box face. The point buffer is updated as one more task of the
-  // same pass: it reads the inside points only, and marking does not touch the buffer.
-  MarkScan(inside_p, inside_o, outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
+  // it as free space up to the box face. The point buffer and the deferred store are updated as
+  // one more task of the same pass: marking touches neither.
+  MarkScan(*mark_p, *mark_o, outside.points_W, outside.origins_W, config_.sampler.observed_band_m,
            config_.sampler.free_space_rays, config_.sampler.free_space_rays / 4, local_map_.get(),
            &trainer_->pool(), [&] {
              buffer_->AddFrame(inside_p, inside_o);
+             buffer_->AddPoints(reached_p, reached_o);
              buffer_->RemoveOutside(lo, hi);
+             deferred_->Add(outside.points_W, outside.origins_W, sensor_W);
            });
   // Outlier removal needs a decoder that already means something: not before it is frozen.
   if (config_.buffer.outlier_removal && frames_ >= config_.decoder.freeze_after_frames &&
@@ -147,9 +167,9 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   {
     std::unique_lock<std::shared_mutex> lock(mu_);
     const double t0 = Now();
-    SlideTo(scan.T_world_sensor.translation());
+    const bool moved = SlideTo(scan.T_world_sensor.translation());
     const double t1 = Now();
-    Preprocess(scan);
+    Preprocess(scan, moved);
     t.slide_s = t1 - t0;
     t.preprocess_s = Now() - t1;
   }
@@ -291,6 +311,9 @@ MapperStats Mapper::Stats() const {
   s.frames = frames_;
   s.map_version = map_version_.load();
   s.buffer_points = int64_t(buffer_->size());
+  const DeferredStats deferred = deferred_->Stats();
+  s.deferred_points = deferred.points;
+  s.deferred_bytes = deferred.bytes;
   s.local_map_bytes = local_map_->MemoryBytes();
   const SubmapStoreStats st = store_->Stats();
   s.submap_bytes = st.host_bytes;

@@ -22,6 +22,7 @@
 namespace rim {
 
 class Decoder;
+class DeferredPoints;
 class LocalMap;
 class PointBuffer;
 class SlabSaver;
@@ -73,6 +74,8 @@ struct MapperStats {
   int64_t frames = 0;
   uint64_t map_version = 0;
   int64_t buffer_points = 0;
+  int64_t deferred_points = 0;  // rays seen outside the box, waiting for it (deferred_points.h)
+  int64_t deferred_bytes = 0;
   int64_t local_map_bytes = 0;
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
@@ -128,14 +131,18 @@ class Mapper {
   const LocalMap& local_map() const { return *local_map_; }
   const SubmapStore& store() const { return *store_; }
   const Decoder& decoder() const { return *decoder_; }
+  const DeferredPoints& deferred() const { return *deferred_; }
 
  private:
   explicit Mapper(const MapperConfig& config);
-  void SlideTo(const Vec3d& position_W);
-  void Preprocess(const PosedScan& scan);
+  // Returns true when the box was placed or moved.
+  bool SlideTo(const Vec3d& position_W);
+  void Preprocess(const PosedScan& scan, bool box_moved);
   void BumpVersions(bool decoder_changed);
   absl::Status SaveState(const std::string& path) const;
-  absl::Status LoadState(const std::string& path);
+  absl::Status LoadState(const std::string& path, uint32_t* version);
+  absl::Status SaveDeferred(const std::string& path) const;
+  absl::Status LoadDeferred(const std::string& path);
 
   MapperConfig config_;
   std::unique_ptr<MapGeometry> geometry_;
@@ -144,6 +151,7 @@ class Mapper {
   std::unique_ptr<SlabSaver> saver_;
   std::unique_ptr<Decoder> decoder_;
   std::unique_ptr<PointBuffer> buffer_;
+  std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
   struct OutsideRaysHolder;
   std::unique_ptr<OutsideRaysHolder> outside_;

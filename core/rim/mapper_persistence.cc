@@ -8,11 +8,13 @@
 #include <filesystem>
 #include <mutex>
 
+#include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "rim/base/binary_io.h"
 #include "rim/base/status_macros.h"
+#include "rim/map/deferred_points.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
 #include "rim/map/submap_store.h"
@@ -24,7 +26,9 @@
 namespace rim {
 namespace {
 
-constexpr uint32_t kStateVersion = 1;
+// Version 2 added deferred.rimf (the deferred rays); a version 1 checkpoint has none and loads
+// with an empty store.
+constexpr uint32_t kStateVersion = 2;
 namespace fs = std::filesystem;
 
 // Sequence number of a checkpoint folder name, or -1.
@@ -127,15 +131,34 @@ absl::Status Mapper::SaveState(const std::string& path) const {
   return WriteFileAtomic(path, "STAT", w.data());
 }
 
-absl::Status Mapper::LoadState(const std::string& path) {
+absl::Status Mapper::SaveDeferred(const std::string& path) const {
+  ByteWriter w;
+  deferred_->Serialize(&w);
+  return WriteFileAtomic(path, "DEFR", w.data());
+}
+
+absl::Status Mapper::LoadDeferred(const std::string& path) {
+  RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(path, "DEFR"));
+  ByteReader r(bytes, path);
+  absl::Status s = deferred_->Deserialize(&r, config_.buffer.max_range_m);
+  if (s.ok()) s = r.ExpectEnd();
+  if (s.ok()) return s;
+  // Reader errors name the file already; the store's own checks do not.
+  return absl::DataLossError(absl::StartsWith(s.message(), path)
+                                 ? std::string(s.message())
+                                 : absl::StrCat(path, ": ", s.message()));
+}
+
+absl::Status Mapper::LoadState(const std::string& path, uint32_t* version_out) {
   RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(path, "STAT"));
   ByteReader r(bytes, path);
   uint32_t version;
   uint64_t frames, map_version;
   RIM_RETURN_IF_ERROR(r.U32(&version));
-  if (version != kStateVersion)
+  if (version < 1 || version > kStateVersion)
     return absl::DataLossError(
-        absl::StrCat(path, ": state version ", version, ", expected ", kStateVersion));
+        absl::StrCat(path, ": state version ", version, ", expected 1 to ", kStateVersion));
+  *version_out = version;
   RIM_RETURN_IF_ERROR(r.U64(&frames));
   RIM_RETURN_IF_ERROR(r.U64(&map_version));
   auto with_path = [&](absl::Status s) {
@@ -177,6 +200,7 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   RIM_RETURN_IF_ERROR(MakeDirs(ckpt));
   RIM_RETURN_IF_ERROR(WriteFileAtomic(ckpt + "/config.rimf", "CONF", config_.ToString()));
   RIM_RETURN_IF_ERROR(SaveState(ckpt + "/state.rimf"));
+  RIM_RETURN_IF_ERROR(SaveDeferred(ckpt + "/deferred.rimf"));
   RIM_RETURN_IF_ERROR(store_->SaveTo(ckpt + "/submaps"));
   RIM_RETURN_IF_ERROR(WriteFileAtomic(dir + "/CURRENT", "CURR", name));
   for (const auto& e : fs::directory_iterator(dir, ec)) {
@@ -201,7 +225,9 @@ absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Load(const std::string& dir,
         ckpt, "/config.rimf: the map needs ", InitialHostBytes(config), " bytes of host memory, ",
         "over the ", max_host_bytes, " left in the budget"));
   RIM_ASSIGN_OR_RETURN(std::unique_ptr<Mapper> mapper, Create(config));
-  RIM_RETURN_IF_ERROR(mapper->LoadState(ckpt + "/state.rimf"));
+  uint32_t state_version = 0;
+  RIM_RETURN_IF_ERROR(mapper->LoadState(ckpt + "/state.rimf", &state_version));
+  if (state_version >= 2) RIM_RETURN_IF_ERROR(mapper->LoadDeferred(ckpt + "/deferred.rimf"));
   RIM_RETURN_IF_ERROR(mapper->store_->LoadFrom(ckpt + "/submaps"));
   return mapper;
 }

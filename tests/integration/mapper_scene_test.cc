@@ -213,6 +213,41 @@ TEST_F(MapperSceneTest, MeshIsAccurateAndTilesAreSeamless) {
       border, crossing, Median(others));
   EXPECT_GT(crossing, 100u);
   EXPECT_LE(border, 2 * Median(others) + 10);
+
+  // No crack along any straight line: every voxel-face plane x = const and y = const across the
+  // mapped stretch, the faces of the last box included (it ends at x = 30 m, box [20, 40) x
+  // [-10, 10)), has no more open edges than a few times the median plane. A crack (cells left
+  // out of the mesh along a plane) opens edges on both sides of it over every surface it crosses.
+  for (int axis = 0; axis < 2; ++axis) {
+    std::map<long, int> per_plane;
+    for (const auto& [e, uses] : edge_use) {
+      if (uses != 1) continue;
+      const float a = welded.vertices[e.first][axis], b = welded.vertices[e.second][axis];
+      const double k = std::round(a / 0.1);
+      if (a == b && std::abs(a - k * 0.1) < 1e-4) per_plane[long(k)]++;
+    }
+    const long first = axis == 0 ? 30 : -80, last = axis == 0 ? 400 : 80;
+    // Planes that hold a face of the scene's boxes have open edges along them by nature (where
+    // the ground meets a wall, where a wall's observed part ends): they are left out.
+    auto on_a_face = [&](long k) {
+      for (const auto& b : scene_->boxes)
+        if (std::abs(k * 0.1 - b.min[axis]) < 0.15 || std::abs(k * 0.1 - b.max[axis]) < 0.15)
+          return true;
+      return false;
+    };
+    std::vector<double> counts;
+    long worst = -1000000;
+    for (long k = first; k <= last; ++k) {
+      if (on_a_face(k)) continue;
+      counts.push_back(per_plane[k]);
+      if (worst == -1000000 || per_plane[k] > per_plane[worst]) worst = k;
+    }
+    const double median = Median(counts);
+    std::printf("%c planes %.1f..%.1f m: median %.0f open edges, worst %d at %.1f m\n", "xy"[axis],
+                first * 0.1, last * 0.1, median, per_plane[worst], worst * 0.1);
+    EXPECT_LE(per_plane[worst], 4 * median + 20) << "a straight crack at "
+                                                 << "xy"[axis] << " = " << worst * 0.1 << " m";
+  }
 }
 
 TEST_F(MapperSceneTest, OutlierRemovalDropsPlantedOutliersAndKeepsSurface) {

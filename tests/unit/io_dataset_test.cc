@@ -96,6 +96,9 @@ TEST(IoDatasetTest, KittiLayoutWithCalibAndTimes) {
   EXPECT_TRUE(scan->origins_S.empty());
   EXPECT_DOUBLE_EQ(scan->timestamp_s, 0.207);
   ExpectPoseNear(scan->T_world_sensor, TestTr().inverse() * poses[2] * TestTr());
+  // The poses without reading a frame: the same as Read gives.
+  ASSERT_EQ((*ds)->poses().size(), 3u);
+  EXPECT_TRUE((*ds)->poses()[2].matrix() == scan->T_world_sensor.matrix());
 
   auto out_of_range = (*ds)->Read(3);
   ASSERT_FALSE(out_of_range.ok());
@@ -231,6 +234,8 @@ TEST(IoDatasetTest, SevenScenesLayout) {
   EXPECT_NEAR(scan->points_S[0].y(), (0 - 240.0) * 2 / 585, 1e-6);
   EXPECT_FLOAT_EQ(scan->points_S[0].z(), 2.0f);
   EXPECT_TRUE(scan->T_world_sensor.matrix().isApprox(poses[1].matrix(), 1e-5));
+  ASSERT_EQ((*ds)->poses().size(), 2u);
+  EXPECT_TRUE((*ds)->poses()[1].matrix() == scan->T_world_sensor.matrix());
 
   // 3DMatch keeps camera-intrinsics.txt in the scene folder, one level up.
   WriteRaw(scene + "/camera-intrinsics.txt", "50 0 31.5\n0 50 23.5\n0 0 1\n");

@@ -9,10 +9,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "rim/eval/box_union.h"
 #include "rim/eval/nearest_neighbors.h"
 #include "rim/io/mesh_io.h"
 
@@ -422,6 +425,170 @@ TEST(MeshEvalPointsTest, BadPointCloudsAreErrors) {
   EXPECT_NE(outside.status().message().find("GT box"), std::string::npos) << outside.status();
 }
 
+// --- Box unions ----------------------------------------------------------------------------------
+
+bool InUnionBruteForce(const Point3f& p, const std::vector<Eigen::Vector3d>& centres, double hx,
+                       double hy, double z_min, double z_max) {
+  const double x = p[0], y = p[1], z = p[2];
+  for (const Eigen::Vector3d& c : centres) {
+    if (std::abs(x - c.x()) < hx && std::abs(y - c.y()) < hy && z >= c.z() + z_min &&
+        z < c.z() + z_max) {
+      return true;
+    }
+  }
+  return false;
+}
+
+TEST(BoxUnionTest, MatchesBruteForce) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> step(-1.0, 1.0), unit(0.0, 1.0);
+  for (const auto& [hx, hy] : {std::pair{10.0, 10.0}, {0.7, 3.0}, {25.0, 0.4}}) {
+    // A drive: a random walk with some height change, and repeated positions.
+    std::vector<Eigen::Vector3d> centres = {{100, -40, 1.7}};
+    for (int i = 1; i < 300; ++i) {
+      centres.push_back(centres.back() +
+                        Eigen::Vector3d(2 * step(rng), 2 * step(rng), 0.1 * step(rng)));
+      if (i % 50 == 0) centres.push_back(centres.back());
+    }
+    const double z_min = -3, z_max = 3;
+    const auto u = BoxUnion::Create(hx, hy, z_min, z_max, centres);
+    ASSERT_TRUE(u.ok()) << u.status();
+    EXPECT_EQ(u->size(), centres.size());
+    const auto& b = u->bounds();
+    std::vector<Point3f> points;
+    for (int i = 0; i < 100000; ++i) {  // over the bounds and beyond
+      Point3f p;
+      for (int a = 0; a < 3; ++a) {
+        const double span = b[1][a] - b[0][a];
+        p[a] = static_cast<float>(b[0][a] - 0.2 * span + 1.4 * span * unit(rng));
+      }
+      points.push_back(p);
+    }
+    for (int i = 0; i < 20000; ++i) {  // on and about the boxes' faces
+      const Eigen::Vector3d& c = centres[rng() % centres.size()];
+      const double face[3] = {c.x() + (rng() % 2 ? hx : -hx), c.y() + (rng() % 2 ? hy : -hy),
+                              c.z() + (rng() % 2 ? z_max : z_min)};
+      Point3f p = {static_cast<float>(c.x() + hx * step(rng)),
+                   static_cast<float>(c.y() + hy * step(rng)),
+                   static_cast<float>(c.z() + z_min + (z_max - z_min) * unit(rng))};
+      const int a = static_cast<int>(rng() % 3);
+      p[a] = std::nextafter(static_cast<float>(face[a]), rng() % 2 ? INFINITY : -INFINITY);
+      if (rng() % 3 == 0) p[a] = static_cast<float>(face[a]);
+      points.push_back(p);
+    }
+    int inside = 0;
+    for (const Point3f& p : points) {
+      const bool want = InUnionBruteForce(p, centres, hx, hy, z_min, z_max);
+      ASSERT_EQ(u->Contains(p), want)
+          << "hx " << hx << " point " << p[0] << " " << p[1] << " " << p[2];
+      inside += want;
+      if (want) {
+        for (int a = 0; a < 3; ++a) ASSERT_TRUE(p[a] >= b[0][a] && p[a] <= b[1][a]);
+      }
+    }
+    EXPECT_GT(inside, 10000) << "hx " << hx;
+    EXPECT_LT(inside, static_cast<int>(points.size()) - 10000) << "hx " << hx;
+  }
+  EXPECT_FALSE(BoxUnion::Create(1, 1, 0, 1, {{0, 0, 0}})->Contains({NAN, 0, 0.5f}));
+}
+
+TEST(BoxUnionTest, BadArgumentsNameTheProblem) {
+  const std::vector<Eigen::Vector3d> one = {{0, 0, 0}};
+  auto message = [](const absl::StatusOr<BoxUnion>& u) {
+    EXPECT_EQ(u.status().code(), absl::StatusCode::kInvalidArgument);
+    return std::string(u.status().message());
+  };
+  EXPECT_NE(message(BoxUnion::Create(0, 1, -1, 1, one)).find("hx must be > 0"), std::string::npos);
+  EXPECT_NE(message(BoxUnion::Create(1, NAN, -1, 1, one)).find("hy must be > 0"),
+            std::string::npos);
+  EXPECT_NE(message(BoxUnion::Create(1, 1, 1, 1, one)).find("z_min must be < z_max"),
+            std::string::npos);
+  EXPECT_NE(message(BoxUnion::Create(1, 1, -1, 1, {})).find("no centres"), std::string::npos);
+  EXPECT_NE(message(BoxUnion::Create(1, 1, -1, 1, {{0, 0, 0}, {0, INFINITY, 0}}))
+                .find("centre 1 is not finite"),
+            std::string::npos);
+  EXPECT_NE(message(BoxUnion::Create(1e-9, 1, -1, 1, {{0, 0, 0}, {1e3, 0, 0}})).find("2^31"),
+            std::string::npos);
+}
+
+TEST(MeshEvalBoxUnionTest, CropEqualsEvaluatingPreCroppedClouds) {
+  const Mesh gt = GridCloudZ(0, 0, 4, 0, 4, 0.005f);
+  Mesh pred = GridCloudZ(0.03f, 0, 4, 0, 4, 0.02f);
+  pred.vertices.push_back({3, 3, 1.5f});        // a floater inside the third box, which holds no GT
+  pred.vertices.push_back({0.5f, 0.5f, 1.5f});  // one above the first box
+  const std::vector<Eigen::Vector3d> centres = {{1, 1, 0}, {1.8, 1.3, 0}, {3, 3, 1}};
+  auto u = BoxUnion::Create(0.6, 0.4, -0.5, 0.7, centres);
+  ASSERT_TRUE(u.ok()) << u.status();
+  auto crop = [&](const Mesh& cloud) {
+    Mesh out;
+    for (const Point3f& p : cloud.vertices) {
+      if (InUnionBruteForce(p, centres, 0.6, 0.4, -0.5, 0.7)) out.vertices.push_back(p);
+    }
+    return out;
+  };
+  // Without the crop to the GT box, so that the floater stays.
+  EvalOptions options = SmallOptions();
+  options.crop_to_gt = false;
+  EvalOptions with_union = options;
+  with_union.box_union = std::make_shared<const BoxUnion>(*std::move(u));
+  const auto cropped = EvaluateMeshes(pred, gt, with_union);
+  ASSERT_TRUE(cropped.ok()) << cropped.status();
+  const auto pre_cropped = EvaluateMeshes(crop(pred), crop(gt), options);
+  ASSERT_TRUE(pre_cropped.ok()) << pre_cropped.status();
+  EXPECT_EQ(cropped->gt_samples, pre_cropped->gt_samples);
+  EXPECT_EQ(cropped->pred_samples, pre_cropped->pred_samples);
+  EXPECT_EQ(cropped->gt_points, pre_cropped->gt_points);
+  EXPECT_EQ(cropped->pred_points, pre_cropped->pred_points);
+  EXPECT_EQ(cropped->pred_dropped, 1);  // the floater in the third box
+  for (const auto& [a, b] : {std::pair{cropped->standard, pre_cropped->standard},
+                             {cropped->strict, pre_cropped->strict}}) {
+    EXPECT_DOUBLE_EQ(a.accuracy_m, b.accuracy_m);
+    EXPECT_DOUBLE_EQ(a.completeness_m, b.completeness_m);
+    EXPECT_DOUBLE_EQ(a.precision, b.precision);
+    EXPECT_DOUBLE_EQ(a.recall, b.recall);
+  }
+  EXPECT_NEAR(cropped->standard.accuracy_m, 0.03, 0.002);
+  EXPECT_GT(cropped->strict.accuracy_m, cropped->standard.accuracy_m);
+}
+
+TEST(MeshEvalBoxUnionTest, MeshesAreSampledInsideTheUnion) {
+  // The prediction covers [0, 4]^2, the GT only x < 2: half the prediction is a false positive.
+  const Mesh pred = PlaneZ(0.03f, 0, 4, 0, 4);
+  const Mesh gt = PlaneZ(0, 0, 2, 0, 4);
+  EvalOptions uncropped = SmallOptions();
+  uncropped.crop_to_gt = false;
+  const auto full = EvaluateMeshes(pred, gt, uncropped);
+  ASSERT_TRUE(full.ok()) << full.status();
+  EXPECT_LT(full->strict.precision, 0.6);
+  // Boxes along x = 0.5 cover [0, 1] x [0, 4]: inside them both are complete and 3 cm apart.
+  auto u = BoxUnion::Create(0.5, 1.0, -0.5, 0.5, {{0.5, 1, 0}, {0.5, 3, 0}});
+  ASSERT_TRUE(u.ok()) << u.status();
+  EvalOptions options = SmallOptions();
+  options.box_union = std::make_shared<const BoxUnion>(*std::move(u));
+  const auto r = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->pred_area_m2, 4.0, 0.02);  // clipped to the union's bounds first
+  EXPECT_NEAR(r->gt_area_m2, 4.0, 0.02);
+  EXPECT_GT(r->pred_samples, 0.99 * 200'000);  // nearly every sample is inside the union
+  EXPECT_NEAR(r->strict.accuracy_m, 0.03, 0.002);
+  EXPECT_NEAR(r->strict.completeness_m, 0.03, 0.002);
+  EXPECT_EQ(r->strict.fscore, 1.0);
+
+  // A union away from the GT leaves nothing to score.
+  auto away = BoxUnion::Create(0.5, 0.5, -0.5, 0.5, {{3, 3, 0}});
+  ASSERT_TRUE(away.ok());
+  options.box_union = std::make_shared<const BoxUnion>(*std::move(away));
+  auto none = EvaluateMeshes(pred, gt, options);
+  EXPECT_EQ(none.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(none.status().message().find("GT mesh has no area inside the box union"),
+            std::string::npos)
+      << none.status();
+  none = EvaluateMeshes(pred, GridCloudZ(0, 0, 2, 0, 4, 0.01f), options);
+  EXPECT_NE(none.status().message().find("GT has no points inside the box union (1 boxes)"),
+            std::string::npos)
+      << none.status();
+}
+
 // --- The rim_eval command line -------------------------------------------------------------------
 
 // A minimal JSON syntax check (RFC 8259 grammar, no semantics), enough to catch broken output.
@@ -612,6 +779,61 @@ TEST_F(RimEvalCliTest, PointCloudGroundTruth) {
   r = RunRimEval(pred_ + " " + gt_ + " --json --samples 20000");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   EXPECT_NE(r.out.find("\"gt_kind\": \"mesh\""), std::string::npos) << r.out;
+}
+
+TEST_F(RimEvalCliTest, BoxUnionAlongASequence) {
+  // A KITTI-layout sequence of two frames (the frames are never read, only the poses).
+  const std::string seq = ::testing::TempDir() + "/rim_mesh_eval_seq";
+  ASSERT_EQ(std::system(("rm -rf " + seq + " && mkdir -p " + seq + "/velodyne").c_str()), 0);
+  for (const char* frame : {"/velodyne/000000.bin", "/velodyne/000001.bin"}) {
+    std::fclose(std::fopen((seq + frame).c_str(), "wb"));
+  }
+  FILE* poses = std::fopen((seq + "/poses.txt").c_str(), "w");
+  ASSERT_NE(poses, nullptr);
+  std::fputs("1 0 0 0.5 0 1 0 0.5 0 0 1 0\n1 0 0 1.5 0 1 0 0.5 0 0 1 0\n", poses);
+  std::fclose(poses);
+  // The boxes cover [0, 2] x [0, 1] of the 2 x 2 m planes: half the samples of each side.
+  RunResult r =
+      RunRimEval(pred_ + " " + gt_ + " --json --samples 20000 --box 0.5,0.5,-1,1 --seq " + seq);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
+  EXPECT_NE(r.out.find("\"box\": {\"hx\": 0.5000, \"hy\": 0.5000, \"z_min\": -1.0000, "
+                       "\"z_max\": 1.0000, \"frames\": 2, \"seq\": \"" +
+                       seq + "\"}"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+  r = RunRimEval(pred_ + " " + gt_ + " --samples 20000 --box=0.5,0.5,-1,1 --seq=" + seq);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("box union: |x - sx| < 0.5, |y - sy| < 0.5, sz -1 <= z < sz +1 m about "
+                       "the 2 sensor positions of " +
+                       seq),
+            std::string::npos)
+      << r.out;
+  r = RunRimEval(pred_ + " " + gt_ + " --json --samples 20000");
+  EXPECT_NE(r.out.find("\"box\": null"), std::string::npos) << r.out;
+
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"--box 1,1,-1,1", "--box needs --seq DIR"},
+      {"--seq " + seq, "--seq needs --box HX,HY,ZMIN,ZMAX"},
+      {"--box 0,1,-1,1 --seq " + seq,
+       "--box HX,HY,ZMIN,ZMAX needs HX > 0, HY > 0 and ZMIN < ZMAX, got '0,1,-1,1'"},
+      {"--box 1,-1,-1,1 --seq " + seq, "--box HX,HY,ZMIN,ZMAX needs HX > 0"},
+      {"--box 1,1,1,-1 --seq " + seq, "--box HX,HY,ZMIN,ZMAX needs HX > 0"},
+      {"--box 1,1,1 --seq " + seq, "bad value for --box: '1,1,1'"},
+      {"--box 1,nan,-1,1 --seq " + seq, "bad value for --box: '1,nan,-1,1'"},
+      {"--box 1,1,-1,1 --seq", "--seq needs a value"},
+  };
+  for (const auto& [args, message] : bad) {
+    r = RunRimEval(pred_ + " " + gt_ + " " + args);
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_NE(r.out.find("rim_eval: " + message), std::string::npos) << args << ":\n" << r.out;
+  }
+  r = RunRimEval(pred_ + " " + gt_ + " --box 1,1,-1,1 --seq /nonexistent/seq");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.out.find("rim_eval: cannot place --box along --seq /nonexistent/seq: "),
+            std::string::npos)
+      << r.out;
 }
 
 TEST_F(RimEvalCliTest, FailsClearlyOnBadInput) {

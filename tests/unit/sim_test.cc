@@ -7,6 +7,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -18,6 +19,7 @@
 #include <sstream>
 #include <string>
 #include <unordered_map>
+#include <variant>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -328,8 +330,8 @@ TEST(SimSceneTest, CityIsDeterministicAndVariesWithSeed) {
     switch (a.scene.primitives[i].material) {
       case Material::kBuilding:
         ++buildings;
-        EXPECT_GE(x.max.z(), 4.0);
-        EXPECT_LE(x.max.z(), 20.0);
+        EXPECT_GE(x.max.z(), BuildingOptions{}.height_min);
+        EXPECT_LE(x.max.z(), BuildingOptions{}.height_max);
         break;
       case Material::kTree:
         ++trees;
@@ -353,6 +355,77 @@ TEST(SimSceneTest, CityIsDeterministicAndVariesWithSeed) {
     differs = Bounds(a.scene.primitives[i].shape).min != Bounds(c.scene.primitives[i].shape).min;
   }
   EXPECT_TRUE(differs);
+}
+
+// The footprint corners of a box, in the world's xy plane.
+std::array<Vec2, 4> FootprintCorners(const Box& b) {
+  std::array<Vec2, 4> corners;
+  for (int k = 0; k < 4; ++k) {
+    const double x = (k == 1 || k == 2) ? b.half.x() : -b.half.x();
+    const double y = k >= 2 ? b.half.y() : -b.half.y();
+    corners[k] = b.center.head<2>() + BoxToWorld(b, x, y);
+  }
+  return corners;
+}
+
+// Distance from p to the nearest street centre line (x = i * pitch or y = j * pitch).
+double StreetDistance(const Vec2& p) {
+  const double dx = std::abs(p.x() - kBlockPitch * std::round(p.x() / kBlockPitch));
+  const double dy = std::abs(p.y() - kBlockPitch * std::round(p.y() / kBlockPitch));
+  return std::min(dx, dy);
+}
+
+TEST(SimSceneTest, BuildingsRespectTheHeightAndSetBackRanges) {
+  CityOptions tall_and_far;
+  tall_and_far.buildings = {5.0, 6.0, 30.0, 40.0};
+  for (const CityOptions& co : {CityOptions{}, tall_and_far}) {
+    ASSERT_TRUE(ValidateCityOptions(co).ok());
+    const BuildingOptions& b = co.buildings;
+    const City city = GenerateCity(co);
+    int buildings = 0;
+    double lowest = 1e9, highest = 0, nearest = 1e9, farthest = 0;
+    for (const Primitive& p : city.scene.primitives) {
+      if (p.material != Material::kBuilding) continue;
+      ++buildings;
+      const Box& box = std::get<Box>(p.shape);
+      const Aabb bounds = Bounds(p.shape);
+      lowest = std::min(lowest, bounds.max.z());
+      highest = std::max(highest, bounds.max.z());
+      EXPECT_LT(bounds.min.z(), 0.0) << "solids reach below the ground";
+      EXPECT_GT(bounds.min.z(), -0.1);
+      // Every corner keeps the set-back from every street; the one nearest its own street is
+      // set back by this building's set-back exactly, which is in range.
+      double closest = 1e9;
+      for (const Vec2& c : FootprintCorners(box)) closest = std::min(closest, StreetDistance(c));
+      nearest = std::min(nearest, closest);
+      farthest = std::max(farthest, closest);
+    }
+    EXPECT_GT(buildings, 50) << "set-back " << b.setback_min;
+    EXPECT_GE(lowest, b.height_min);
+    EXPECT_LE(highest, b.height_max);
+    EXPECT_GE(nearest, kFrontage + b.setback_min - 1e-6);
+    EXPECT_LE(farthest, kFrontage + b.setback_max + 1e-6);
+    // The ranges are used, not just respected.
+    EXPECT_LT(lowest, b.height_min + 0.2 * (b.height_max - b.height_min));
+    EXPECT_GT(highest, b.height_max - 0.2 * (b.height_max - b.height_min));
+    EXPECT_LT(nearest, kFrontage + b.setback_min + 0.2 * (b.setback_max - b.setback_min));
+  }
+  // Out-of-range options are refused, naming the field.
+  CityOptions bad;
+  bad.buildings.height_min = 0.5;
+  EXPECT_NE(ValidateCityOptions(bad).message().find("height_min"), std::string::npos);
+  bad = CityOptions{};
+  bad.buildings.setback_max = std::nan("");
+  EXPECT_NE(ValidateCityOptions(bad).message().find("setback_max"), std::string::npos);
+  bad = CityOptions{};
+  bad.buildings.setback_min = 3.0;
+  bad.buildings.setback_max = 2.0;
+  EXPECT_FALSE(ValidateCityOptions(bad).ok());
+  SimOptions o = SmallCity(TempDir("bad_buildings"));
+  o.buildings.height_max = 101.0;
+  const absl::StatusOr<SimSummary> run = RunSim(o);
+  EXPECT_EQ(run.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(run.status().message().find("height_max"), std::string::npos) << run.status();
 }
 
 TEST(SimSceneTest, DefaultGroundTruthStaysSmall) {
@@ -746,7 +819,63 @@ TEST(SimCityTest, ObservedBoxOptionShrinksTheObservedSurface) {
   wide.out_dir = TempDir("observed_box_wide");
   wide.observed_box = ObservedBox{};
   ASSERT_TRUE(RunSim(wide).ok());
-  EXPECT_GT(ReadObserved(wide.out_dir).size(), 2 * points.size());
+  const size_t wide_points = ReadObserved(wide.out_dir).size();
+  EXPECT_GT(wide_points, 1.5 * points.size());
+  // No box: every static hit of every frame, far ones included.
+  SimOptions all = o;
+  all.out_dir = TempDir("observed_box_none");
+  all.observed_box.enabled = false;
+  ASSERT_TRUE(RunSim(all).ok());
+  EXPECT_GT(ReadObserved(all.out_dir).size(), 1.3 * wide_points);
+  const std::string json = ReadFile(all.out_dir + "/scene.json");
+  EXPECT_NE(json.find("\"box\": null"), std::string::npos) << json;
+  const std::string readme = ReadFile(all.out_dir + "/README.txt");
+  EXPECT_NE(readme.find("no mapping box"), std::string::npos) << readme;
+}
+
+// Above the sensor's top beam (+2 deg: about 2.1 m at 10 m), the facades inside the mapping boxes
+// along the drive are seen only from frames farther away. Without the box they are in
+// gt_observed.ply; with it they are not.
+TEST(SimCityTest, ObservedWithoutBoxCoversFacadesSeenOnlyFromAfar) {
+  SimOptions o = SmallCity(TempDir("facades_none"));
+  o.frames = 30;
+  o.columns = 900;
+  o.observed_box.enabled = false;
+  SimOptions boxed = o;
+  boxed.out_dir = TempDir("facades_boxed");
+  boxed.observed_box = ObservedBox{};
+  ASSERT_TRUE(RunSim(o).ok());
+  ASSERT_TRUE(RunSim(boxed).ok());
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  ASSERT_EQ(poses.size(), 30u);
+  const City city = GenerateCity(CityOptions{});
+  // Points 2.5-4.5 m up, inside the union of the default boxes, on a building's side.
+  auto facade_points = [&](const std::vector<Vec3>& points) {
+    int count = 0;
+    for (const Vec3& p : points) {
+      if (p.z() < 2.5 || p.z() > 4.5) continue;
+      bool in_union = false;
+      for (const auto& pose : poses) {
+        in_union = in_union || InBox(p, pose.translation(), ObservedBox{}, 0.0);
+      }
+      if (!in_union) continue;
+      for (const Primitive& prim : city.scene.primitives) {
+        if (prim.material == Material::kBuilding && Contains(prim.shape, p, -0.01) &&
+            !Contains(prim.shape, p, 0.01) && p.z() < Bounds(prim.shape).max.z() - 0.01) {
+          ++count;
+          break;
+        }
+      }
+    }
+    return count;
+  };
+  const std::vector<Vec3> all = ReadObserved(o.out_dir);
+  const std::vector<Vec3> in_boxes = ReadObserved(boxed.out_dir);
+  EXPECT_GT(all.size(), in_boxes.size());
+  const int seen_from_afar = facade_points(all);
+  // 260 points with this seed and these options (514 at 1800 columns).
+  EXPECT_GT(seen_from_afar, 130);
+  EXPECT_EQ(facade_points(in_boxes), 0);
 }
 
 TEST(SimCityTest, PosesCalibAndTimesParseBack) {
@@ -938,6 +1067,23 @@ TEST(SimCliTest, BadArgumentsFailWithAMessage) {
       {{"--out", dir, "--observed-box=10,10,-3,inf"}, "--observed-box must be"},
       {{"--scene", "room", "--out", dir, "--observed-box", "1,1,-1,1"},
        "--observed-box only applies to --scene city"},
+      {{"--out", dir, "--observed-box", "off"}, "--observed-box must be none or HX,HY,ZMIN,ZMAX"},
+      {{"--out", dir, "--building-setback", "3,1"},
+       "--building-setback must be MIN,MAX with 0 <= MIN <= MAX <= 20, got '3,1'"},
+      {{"--out", dir, "--building-setback", "-1,2"}, "--building-setback must be"},
+      {{"--out", dir, "--building-setback", "0,21"}, "--building-setback must be"},
+      {{"--out", dir, "--building-setback", "2"}, "--building-setback must be"},
+      {{"--out", dir, "--building-setback=1,nan"}, "--building-setback must be"},
+      {{"--out", dir, "--building-height", "0.5,10"},
+       "--building-height must be MIN,MAX with 1 <= MIN <= MAX <= 100, got '0.5,10'"},
+      {{"--out", dir, "--building-height", "10,5"}, "--building-height must be"},
+      {{"--out", dir, "--building-height", "4,101"}, "--building-height must be"},
+      {{"--out", dir, "--building-height", "4,x"}, "--building-height must be"},
+      {{"--out", dir, "--building-height", "4,5,6"}, "--building-height must be"},
+      {{"--scene", "room", "--out", dir, "--building-height", "4,5"},
+       "--building-height only applies to --scene city"},
+      {{"--scene", "room", "--out", dir, "--building-setback", "1,2"},
+       "--building-setback only applies to --scene city"},
   };
   for (const auto& [args, message] : cases) {
     const CliResult r = Cli(args);
@@ -969,6 +1115,22 @@ TEST(SimCliTest, HelpAndSuccess) {
   EXPECT_NE(ReadFile(dir + "/scene.json").find("\"hx_m\": 4, \"hy_m\": 5.5, \"z_min_m\": -1.5"),
             std::string::npos)
       << ReadFile(dir + "/scene.json");
+
+  const CliResult city =
+      Cli({"--out", dir, "--frames", "1", "--columns", "90", "--gt-margin", "5",
+           "--building-setback", "1,2.5", "--building-height=6,7.5", "--observed-box", "none"});
+  EXPECT_EQ(city.code, 0) << city.err;
+  const std::string json = ReadFile(dir + "/scene.json");
+  EXPECT_NE(json.find("\"setback_min_m\": 1,\n    \"setback_max_m\": 2.5,\n"
+                      "    \"height_min_m\": 6,\n    \"height_max_m\": 7.5,"),
+            std::string::npos)
+      << json;
+  EXPECT_NE(json.find("\"box\": null"), std::string::npos) << json;
+  const std::string readme = ReadFile(dir + "/README.txt");
+  EXPECT_NE(readme.find("Buildings: 6..7.5 m high, facades set back 1..2.5 m beyond 9.5 m"),
+            std::string::npos)
+      << readme;
+  EXPECT_NE(readme.find("(no mapping box: --observed-box none)"), std::string::npos) << readme;
 
   // An output path under a regular file cannot be created: a runtime error, exit 1.
   const CliResult bad = Cli({"--out", dir + "/gt.ply/sub", "--frames", "1", "--columns", "90"});

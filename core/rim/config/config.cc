@@ -58,6 +58,9 @@ void ForEachField(Config& c, Visitor&& v) {
   v("buffer.outlier_removal", c.buffer.outlier_removal);
   v("buffer.outlier_period_frames", c.buffer.outlier_period_frames);
   v("buffer.outlier_threshold_m", c.buffer.outlier_threshold_m);
+  v("deferred.enabled", c.deferred.enabled);
+  v("deferred.voxel_m", c.deferred.voxel_m);
+  v("deferred.max_points_per_submap", c.deferred.max_points_per_submap);
   v("submap.block_size", c.submap.block_size);
   v("submap.active_radius_submaps", c.submap.active_radius_submaps);
   v("submap.host_budget_bytes", c.submap.host_budget_bytes);
@@ -176,6 +179,18 @@ absl::Status MapperConfig::Validate() const {
     return Bad("buffer.max_range_m", "must be > buffer.min_range_m >= 0");
   if (buffer.outlier_period_frames < 1) return Bad("buffer.outlier_period_frames", "must be >= 1");
   if (!(buffer.outlier_threshold_m > 0.f)) return Bad("buffer.outlier_threshold_m", "must be > 0");
+
+  if (!(deferred.voxel_m >= 0.01f && deferred.voxel_m <= 10.f))
+    return Bad("deferred.voxel_m", "must be in [0.01, 10]");
+  {
+    // Voxel indices inside a sub-map (the local box's size) must fit in 32 bits.
+    const double per_submap = std::ceil(2.0 * g.half_extent_x_m / deferred.voxel_m) *
+                              std::ceil(2.0 * g.half_extent_y_m / deferred.voxel_m) *
+                              std::ceil((g.z_max_m - g.z_min_m) / deferred.voxel_m);
+    if (per_submap > 4e9) return Bad("deferred.voxel_m", "gives more than 4e9 voxels per sub-map");
+  }
+  if (deferred.max_points_per_submap < 8 || deferred.max_points_per_submap > 100000000)
+    return Bad("deferred.max_points_per_submap", "must be in [8, 1e8]");
 
   if (submap.block_size < 2 || submap.block_size > 64)
     return Bad("submap.block_size", "must be in [2, 64]");

@@ -82,6 +82,14 @@ struct BufferConfig {
   float outlier_threshold_m = 0.05f;  // ε
 };
 
+// Deferred supervision (map/deferred_points.h): returns seen outside the local box are kept per
+// sub-map and join the point buffer when the box covers them.
+struct DeferredConfig {
+  bool enabled = true;   // ignored (nothing kept) when grid.sliding is false
+  float voxel_m = 0.1f;  // one ray kept per voxel of this size, the shortest-range one
+  int max_points_per_submap = 100000;  // past it the longest-range rays are dropped first
+};
+
 // Global map of sub-maps (§3.3).
 struct SubmapConfig {
   int block_size = 8;  // sparse storage unit, voxels per edge
@@ -105,6 +113,7 @@ struct MapperConfig {
   TrainConfig train;
   SamplerConfig sampler;
   BufferConfig buffer;
+  DeferredConfig deferred;
   SubmapConfig submap;
   MeshConfig mesh;
 

@@ -5,11 +5,13 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <string>
 #include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "rim/base/status_macros.h"
 #include "rim/eval/nearest_neighbors.h"
 #include "rim/eval/parallel_for.h"
@@ -180,6 +182,20 @@ void ClipTriangle(const Triangle& t, const Box& box, std::vector<Triangle>* out)
   for (int i = 1; i + 1 < n; ++i) {
     out->push_back({to_float(poly[0]), to_float(poly[i]), to_float(poly[i + 1])});
   }
+}
+
+// The points inside the box union, in their order.
+std::vector<Point3f> KeepInside(const std::vector<Point3f>& points, const BoxUnion& box_union,
+                                int threads) {
+  std::vector<uint8_t> inside(points.size());
+  ParallelFor(static_cast<int64_t>(points.size()), 65536, threads, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) inside[i] = box_union.Contains(points[i]);
+  });
+  std::vector<Point3f> out;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (inside[i]) out.push_back(points[i]);
+  }
+  return out;
 }
 
 std::vector<Triangle> CropTriangles(const std::vector<Triangle>& tris, const Box& box) {
@@ -421,25 +437,57 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
     }
   }
 
+  // Meshes are clipped to the box union's bounding box, so that the samples land near it.
+  const BoxUnion* box_union = options.box_union.get();
+  if (box_union != nullptr) {
+    if (result.gt_kind == InputKind::kMesh) gt_tris = CropTriangles(gt_tris, box_union->bounds());
+    if (result.pred_kind == InputKind::kMesh) {
+      pred_tris = CropTriangles(pred_tris, box_union->bounds());
+    }
+  }
+
   // Steps 2–3. Different streams, so that a mesh against itself is not sampled identically. A
-  // point cloud is taken as it is.
+  // point cloud is taken as it is. Then the box union, if any.
   if (result.gt_kind == InputKind::kMesh) {
     gt_points =
         SampleTriangles(gt_tris, options.samples, options.seed, 1, threads, &result.gt_area_m2);
-    if (gt_points.empty()) return absl::InvalidArgumentError("GT mesh has no area");
+    if (gt_points.empty()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("GT mesh has no area",
+                       box_union != nullptr ? " inside the box union's bounding box" : ""));
+    }
+  }
+  if (box_union != nullptr) {
+    gt_points = KeepInside(gt_points, *box_union, threads);
+    if (gt_points.empty()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("GT has no ", result.gt_kind == InputKind::kMesh ? "samples" : "points",
+                       " inside the box union (", box_union->size(), " boxes)"));
+    }
   }
   if (result.pred_kind == InputKind::kMesh) {
     pred_points =
         SampleTriangles(pred_tris, options.samples, options.seed, 0, threads, &result.pred_area_m2);
     if (pred_points.empty()) {
+      std::vector<std::string> where;
+      if (options.crop_to_gt) where.push_back("the (padded) GT box");
+      if (box_union != nullptr) where.push_back("the box union's bounding box");
       return absl::InvalidArgumentError(absl::StrCat(
-          "prediction mesh has no area", options.crop_to_gt ? " inside the (padded) GT box" : "",
-          ": ", pred.faces.size(), " triangles before cropping"));
+          "prediction mesh has no area", where.empty() ? "" : " inside ",
+          absl::StrJoin(where, " and "), ": ", pred.faces.size(), " triangles before cropping"));
     }
   } else if (pred_points.empty()) {
     return absl::InvalidArgumentError(absl::StrCat(
         "prediction point cloud has no points inside the (padded) GT box: ", pred.vertices.size(),
         " points before cropping"));
+  }
+  if (box_union != nullptr) {
+    pred_points = KeepInside(pred_points, *box_union, threads);
+    if (pred_points.empty()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "prediction has no ", result.pred_kind == InputKind::kMesh ? "samples" : "points",
+          " inside the box union (", box_union->size(), " boxes)"));
+    }
   }
   result.gt_samples = static_cast<int64_t>(gt_points.size());
   result.pred_samples = static_cast<int64_t>(pred_points.size());

@@ -12,14 +12,20 @@
 // rim_sim's gt_observed.ply, the surface its sensor actually saw). Its vertices are then the
 // points of step 2 as they are (no area sampling); cropping keeps the points inside the box, and
 // steps 3–6 are unchanged.
+//
+// With a box union (EvalOptions::box_union), both sides are cropped to it after step 2: only the
+// samples (and a point cloud's points) inside it are kept. Meshes are clipped to the union's
+// bounding box before sampling, so that the samples are spent near it.
 #pragma once
 
 #include <array>
 #include <cstdint>
+#include <memory>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "rim/base/mesh.h"
+#include "rim/eval/box_union.h"
 
 namespace rim::eval {
 
@@ -40,6 +46,9 @@ struct EvalOptions {
   // (SHINE-Mapping pads only z, by its voxel size, and keeps only the triangles wholly inside;
   // here triangles are clipped exactly.)
   double crop_margin_m = 0.2;
+  // When set, both the prediction and the GT are evaluated only inside this union of boxes (after
+  // the crop of step 1).
+  std::shared_ptr<const BoxUnion> box_union;
 };
 
 // Fractions are in [0, 1]; distances in metres.
@@ -61,11 +70,14 @@ struct EvalResult {
   Metrics strict;    // without them
   InputKind pred_kind = InputKind::kMesh;
   InputKind gt_kind = InputKind::kMesh;
-  double pred_area_m2 = 0;  // after cropping; 0 for a point cloud
+  // After cropping (to the GT box, and to the box union's bounding box); 0 for a point cloud.
+  double pred_area_m2 = 0;
   double gt_area_m2 = 0;
-  int64_t pred_samples = 0;  // sampled (a point cloud: its points, after cropping), before voxel
-  int64_t gt_samples = 0;    // averaging
-  int64_t pred_points = 0;   // after voxel averaging: the points the metrics are over
+  // Sampled (a point cloud: its points), after cropping (also to the box union itself), before
+  // voxel averaging.
+  int64_t pred_samples = 0;
+  int64_t gt_samples = 0;
+  int64_t pred_points = 0;  // after voxel averaging: the points the metrics are over
   int64_t gt_points = 0;
   int64_t pred_dropped = 0;  // prediction points left out of the standard metrics
   int64_t gt_capped = 0;     // GT points whose distance the standard metrics cap
@@ -77,8 +89,9 @@ absl::Status ValidateEvalOptions(const EvalOptions& options);
 // Evaluates `pred` against `gt`; either may be a point cloud (vertices, no faces). Errors
 // (InvalidArgument) for bad options, face indices out of range, non-finite vertices (of a point
 // cloud: any vertex; of a mesh: those faces use), a GT without area or points, and a prediction
-// without area or points inside the padded GT box: an empty prediction has no defined accuracy,
-// and a script must not mistake it for a number.
+// without area or points inside the padded GT box (or either without points inside the box
+// union): an empty prediction has no defined accuracy, and a script must not mistake it for a
+// number.
 absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
                                           const EvalOptions& options);
 

@@ -2,8 +2,10 @@
 // folder; frames are read on demand, so a long sequence never sits in memory at once.
 #pragma once
 
+#include <Eigen/Geometry>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "rim/base/scan.h"
@@ -29,6 +31,9 @@ class Dataset {
 
   virtual DatasetLayout layout() const = 0;
   virtual size_t size() const = 0;
+  // T_world_sensor of every frame (size() of them), as Read gives it, without reading a frame:
+  // the index files are read by Open.
+  virtual const std::vector<Eigen::Isometry3d>& poses() const = 0;
   // Reads frame `index`: points in the sensor frame (depth images become rays from the camera
   // centre) and T_world_sensor. Errors name the file.
   virtual absl::StatusOr<PosedScan> Read(size_t index) const = 0;

@@ -27,6 +27,7 @@ class LidarFramesDataset : public Dataset {
 
   DatasetLayout layout() const override { return layout_; }
   size_t size() const override { return frames_.size(); }
+  const std::vector<Eigen::Isometry3d>& poses() const override { return poses_; }
 
   absl::StatusOr<PosedScan> Read(size_t index) const override {
     if (index >= frames_.size()) {

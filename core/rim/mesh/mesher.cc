@@ -20,16 +20,17 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
   const Int3 tile_lo = key.cwiseProduct(cells), tile_hi = tile_lo + cells - Int3::Ones();
   std::vector<Int3> out;
   const LocalMap& map = src.local_map;
-  // The live map is authoritative for the voxels (cells) inside the box: lattice points lo..hi
-  // bound the cells lo..hi−1. The cell starting at hi lies outside the box and comes from the
-  // store like any other.
+  // The live map is authoritative for every lattice point of the box, lo..hi inclusive: a cell's
+  // flags live at its minimum corner, and a point of the box's max face keeps in the live map
+  // what it was given while it was inside the box (the store gets it only when it leaves). Taking
+  // the cells at hi from the store dropped them from the mesh along the faces of the last box,
+  // though queries reported them observed.
   const IntBox box = map.LatticeBox(0);
-  const IntBox live_cells{box.lo, box.hi - Int3::Ones()};
   for (const Int3& g : src.store.ObservedCells(key))
-    if (!map.placed() || !live_cells.Contains(g)) out.push_back(g);
+    if (!map.placed() || !box.Contains(g)) out.push_back(g);
   if (map.placed()) {
     const Int3 lo = box.lo.cwiseMax(tile_lo);
-    const Int3 hi = (box.hi - Int3::Ones()).cwiseMin(tile_hi);  // cells, not lattice points
+    const Int3 hi = box.hi.cwiseMin(tile_hi);
     const LocalMap::Level& grid = map.level(0);
     for (int x = lo.x(); x <= hi.x(); ++x)
       for (int y = lo.y(); y <= hi.y(); ++y)

@@ -24,6 +24,17 @@ void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W,
     points_.push_back(points_W[idx[i]]);
     origins_.push_back(origins_W[idx[i]]);
   }
+  TrimToBound();
+}
+
+void PointBuffer::AddPoints(const std::vector<Vec3f>& points_W,
+                            const std::vector<Vec3f>& origins_W) {
+  points_.insert(points_.end(), points_W.begin(), points_W.end());
+  origins_.insert(origins_.end(), origins_W.begin(), origins_W.end());
+  TrimToBound();
+}
+
+void PointBuffer::TrimToBound() {
   while (points_.size() > size_t(config_.max_points)) {
     std::uniform_int_distribution<size_t> pick(0, points_.size() - 1);
     const size_t j = pick(rng_);

@@ -19,6 +19,9 @@ class PointBuffer {
   // Adds a frame's inside points (world frame), keeping at most max_points_per_frame of them
   // (uniform random subset), then drops random points while over max_points.
   void AddFrame(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W);
+  // Adds rays as they are (no per-frame subset), then drops random points while over max_points:
+  // deferred rays that the box has just reached (map/deferred_points.h).
+  void AddPoints(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W);
   // Drops points whose endpoint left the box [min, max).
   void RemoveOutside(const Vec3d& min_m, const Vec3d& max_m);
   // Drops points where keep[i] is false.
@@ -32,6 +35,8 @@ class PointBuffer {
   absl::Status Deserialize(ByteReader* r);
 
  private:
+  void TrimToBound();
+
   BufferConfig config_;
   std::mt19937_64 rng_;
   std::vector<Vec3f> points_;

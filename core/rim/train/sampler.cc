@@ -1,5 +1,6 @@
 #include "rim/train/sampler.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -17,6 +18,23 @@ float BoxExitDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_mi
     if (dir[a] < 0.f) t = std::min(t, (box_min[a] - origin[a]) / dir[a]);
   }
   return std::max(t, 0.f);
+}
+
+float BoxEntryDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_min,
+                       const Vec3f& box_max) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  float t_in = 0.f, t_out = kInf;
+  for (int a = 0; a < 3; ++a) {
+    if (dir[a] == 0.f) {
+      if (origin[a] < box_min[a] || origin[a] > box_max[a]) return kInf;
+      continue;
+    }
+    float t0 = (box_min[a] - origin[a]) / dir[a], t1 = (box_max[a] - origin[a]) / dir[a];
+    if (t0 > t1) std::swap(t0, t1);
+    t_in = std::max(t_in, t0);
+    t_out = std::min(t_out, t1);
+  }
+  return t_in <= t_out ? t_in : kInf;
 }
 
 uint64_t FastRng::SplitMix(uint64_t* x) {
@@ -110,10 +128,20 @@ void Sampler::SampleInside(const PointBuffer& buffer, const Vec3f& lo, const Vec
       const float t = d + noise(*rng);
       Add(o + t * dir, d - t, lo, hi, out);
     }
-    for (int k = 0; k < Nf; ++k) {
-      // Stratified: one uniform sample in each of Nf equal sub-intervals of [a·d, b·d].
-      const float t = d * (a + (b - a) * (float(k) + unit(*rng)) / float(Nf));
-      Add(o + t * dir, d - t, lo, hi, out);
+    const bool origin_inside = (o.array() >= lo.array()).all() && (o.array() <= hi.array()).all();
+    if (origin_inside) {
+      for (int k = 0; k < Nf; ++k) {
+        // Stratified: one uniform sample in each of Nf equal sub-intervals of [a·d, b·d].
+        const float t = d * (a + (b - a) * (float(k) + unit(*rng)) / float(Nf));
+        Add(o + t * dir, d - t, lo, hi, out);
+      }
+    } else {
+      // The same strata over the part of [a·d, b·d] inside the box; none if it has no such part.
+      const float t0 = std::max(a * d, BoxEntryDistance(o, dir, lo, hi)), t1 = b * d;
+      for (int k = 0; k < Nf; ++k) {
+        const float t = t0 + (t1 - t0) * (float(k) + unit(*rng)) / float(Nf);
+        if (t0 < t1) Add(o + t * dir, d - t, lo, hi, out);
+      }
     }
     if (Add(p, 0.f, lo, hi, out)) out->endpoints.push_back(int32_t(out->labels.size() - 1));
   }

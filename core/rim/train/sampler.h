@@ -40,6 +40,11 @@ struct OutsideRays {
 float BoxExitDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_min,
                       const Vec3f& box_max);
 
+// Distance along a ray from `origin` (anywhere) to where it enters the box [min, max]: 0 when the
+// origin is inside, infinity when the ray misses the box.
+float BoxEntryDistance(const Vec3f& origin, const Vec3f& dir, const Vec3f& box_min,
+                       const Vec3f& box_max);
+
 // A small, fast generator for the sampling pieces (xoshiro256**, state filled by splitmix64 from
 // the seed): a few cycles per draw against a Mersenne twister's table refills.
 class FastRng {
@@ -71,7 +76,9 @@ class Sampler {
   Sampler(const SamplerConfig& config, float sigma_m, uint64_t seed);
 
   // Draws rays_per_iteration rays uniformly from the buffer: Ns surface samples ~ N(d, σ²), Nf
-  // stratified free samples in [free_min_ratio·d, free_max_ratio·d], and the endpoint. With
+  // stratified free samples in [free_min_ratio·d, free_max_ratio·d], and the endpoint. A ray whose
+  // origin is outside the box (an old ray, or a deferred one seen from afar) is clipped to it:
+  // its free samples are stratified over the part of that interval inside the box. With
   // outside rays enabled, also draws outside_rays_per_iteration rays of `outside` and samples
   // Nf stratified free-space points between the sensor and the box exit, labelled with the
   // distance to the real endpoint beyond the box. Samples outside the box are dropped.

@@ -1,0 +1,221 @@
+#include "rim/map/deferred_points.h"
+
+#include <algorithm>
+#include <cmath>
+#include <tuple>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
+
+namespace rim {
+
+DeferredPoints::DeferredPoints(const MapGeometry& geometry, const GridConfig& grid,
+                               const DeferredConfig& config)
+    : extent_m_(geometry.extent_m()),
+      voxel_m_(config.voxel_m),
+      max_per_submap_(config.max_points_per_submap),
+      enabled_(config.enabled && grid.sliding) {
+  for (int a = 0; a < 3; ++a) dims_[a] = std::max(1, int(std::ceil(extent_m_[a] / voxel_m_)));
+  const float height = grid.z_max_m - grid.z_min_m;
+  band_lo_m_ = grid.z_min_m - height;
+  band_hi_m_ = grid.z_max_m + height;
+}
+
+bool DeferredPoints::Locate(const Vec3f& p, Int3* key, uint32_t* voxel) const {
+  Int3 v;
+  for (int a = 0; a < 3; ++a) {
+    const double s = std::floor(double(p[a]) / extent_m_[a]);
+    if (!(std::abs(s) < 1e8)) return false;
+    (*key)[a] = int(s);
+    const double local = double(p[a]) - s * extent_m_[a];
+    v[a] = std::clamp(int(local / voxel_m_), 0, dims_[a] - 1);
+  }
+  *voxel = uint32_t((int64_t(v.x()) * dims_.y() + v.y()) * dims_.z() + v.z());
+  return true;
+}
+
+void DeferredPoints::Add(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
+                         const Vec3f& sensor_W) {
+  if (!enabled_) return;
+  Int3 last_key(0, 0, 0);
+  Table* table = nullptr;
+  std::vector<Int3> grown;  // keys: a new sub-map's table may move the others
+  for (size_t i = 0; i < points_W.size(); ++i) {
+    const Vec3f& p = points_W[i];
+    const float dz = p.z() - sensor_W.z();
+    if (dz < band_lo_m_ || dz > band_hi_m_) continue;
+    Int3 key;
+    uint32_t voxel;
+    if (!Locate(p, &key, &voxel)) continue;
+    if (table == nullptr || key != last_key) {
+      table = &submaps_[key];
+      last_key = key;
+    }
+    Ray ray{{p.x(), p.y(), p.z()}, {origins_W[i].x(), origins_W[i].y(), origins_W[i].z()}};
+    auto [it, inserted] = table->try_emplace(voxel, ray);
+    if (inserted) {
+      ++size_;
+      ++added_;
+      if (table->size() == size_t(max_per_submap_) + 1) grown.push_back(key);
+    } else if (ray.range2() < it->second.range2()) {
+      it->second = ray;
+      ++added_;
+    }
+  }
+  for (const Int3& key : grown) {
+    Table& t = submaps_.at(key);
+    if (t.size() > size_t(max_per_submap_)) Evict(&t);
+  }
+}
+
+void DeferredPoints::Evict(Table* table) {
+  // Down to 7/8 of the bound, so that a full sub-map is not sorted on every scan. Ties on the
+  // range are broken by voxel, so that the survivors do not depend on the table's order.
+  const size_t keep = size_t(max_per_submap_) - size_t(max_per_submap_) / 8;
+  std::vector<std::pair<float, uint32_t>> by_range;
+  by_range.reserve(table->size());
+  for (const auto& [voxel, ray] : *table) by_range.emplace_back(ray.range2(), voxel);
+  std::nth_element(by_range.begin(), by_range.begin() + keep, by_range.end());
+  for (size_t i = keep; i < by_range.size(); ++i) table->erase(by_range[i].second);
+  const size_t dropped = by_range.size() - keep;
+  size_ -= dropped;
+  evicted_ += int64_t(dropped);
+}
+
+void DeferredPoints::TakeInside(const Vec3d& min_m, const Vec3d& max_m,
+                                std::vector<Vec3f>* points_W, std::vector<Vec3f>* origins_W) {
+  if (size_ == 0) return;
+  Int3 lo, hi;
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = int(std::floor(min_m[a] / extent_m_[a]));
+    hi[a] = int(std::floor(max_m[a] / extent_m_[a]));
+  }
+  // In double, as the mapper's own inside test: a float endpoint equal to the float of a box face
+  // can lie beyond the face.
+  const Eigen::Array3d box_lo = min_m.array(), box_hi = max_m.array();
+  std::vector<std::pair<uint32_t, Ray>> taken;
+  for (int x = lo.x(); x <= hi.x(); ++x)
+    for (int y = lo.y(); y <= hi.y(); ++y)
+      for (int z = lo.z(); z <= hi.z(); ++z) {
+        auto sub = submaps_.find(Int3(x, y, z));
+        if (sub == submaps_.end()) continue;
+        Table& table = sub->second;
+        taken.clear();
+        for (auto it = table.begin(); it != table.end();) {
+          const Eigen::Array3d p(it->second.p[0], it->second.p[1], it->second.p[2]);
+          if ((p >= box_lo).all() && (p < box_hi).all()) {
+            taken.emplace_back(it->first, it->second);
+            table.erase(it++);
+          } else {
+            ++it;
+          }
+        }
+        std::sort(taken.begin(), taken.end(),
+                  [](const auto& a, const auto& b) { return a.first < b.first; });
+        for (const auto& [voxel, ray] : taken) {
+          points_W->emplace_back(ray.p[0], ray.p[1], ray.p[2]);
+          origins_W->emplace_back(ray.o[0], ray.o[1], ray.o[2]);
+        }
+        size_ -= taken.size();
+        taken_ += int64_t(taken.size());
+        if (table.empty()) submaps_.erase(sub);
+      }
+}
+
+DeferredStats DeferredPoints::Stats() const {
+  DeferredStats s;
+  s.points = int64_t(size_);
+  s.submaps = int(submaps_.size());
+  // A flat hash table holds one slot and one control byte per unit of capacity.
+  constexpr int64_t kSlot = sizeof(std::pair<const uint32_t, Ray>) + 1;
+  for (const auto& [key, table] : submaps_) s.bytes += int64_t(table.capacity()) * kSlot;
+  s.bytes += int64_t(submaps_.capacity()) * int64_t(sizeof(std::pair<const Int3, Table>) + 1);
+  s.added = added_;
+  s.evicted = evicted_;
+  s.taken = taken_;
+  return s;
+}
+
+void DeferredPoints::Serialize(ByteWriter* w) const {
+  std::vector<Int3> keys;
+  keys.reserve(submaps_.size());
+  for (const auto& [key, table] : submaps_) keys.push_back(key);
+  std::sort(keys.begin(), keys.end(), [](const Int3& a, const Int3& b) {
+    return std::tie(a.x(), a.y(), a.z()) < std::tie(b.x(), b.y(), b.z());
+  });
+  w->U64(uint64_t(added_));
+  w->U64(uint64_t(evicted_));
+  w->U64(uint64_t(taken_));
+  w->U32(uint32_t(keys.size()));
+  for (const Int3& key : keys) {
+    const Table& table = submaps_.at(key);
+    std::vector<uint32_t> voxels;
+    voxels.reserve(table.size());
+    for (const auto& [voxel, ray] : table) voxels.push_back(voxel);
+    std::sort(voxels.begin(), voxels.end());
+    std::vector<float> rays;
+    rays.reserve(6 * voxels.size());
+    for (uint32_t v : voxels) {
+      const Ray& r = table.at(v);
+      rays.insert(rays.end(), {r.p[0], r.p[1], r.p[2], r.o[0], r.o[1], r.o[2]});
+    }
+    for (int a = 0; a < 3; ++a) w->I32(key[a]);
+    w->PodVector(voxels);
+    w->PodVector(rays);
+  }
+}
+
+absl::Status DeferredPoints::Deserialize(ByteReader* r, float max_range_m) {
+  uint64_t added, evicted, taken;
+  uint32_t n_submaps;
+  RIM_RETURN_IF_ERROR(r->U64(&added));
+  RIM_RETURN_IF_ERROR(r->U64(&evicted));
+  RIM_RETURN_IF_ERROR(r->U64(&taken));
+  RIM_RETURN_IF_ERROR(r->U32(&n_submaps));
+  // The same slack as the point buffer's check: the float transform of a ray at max range.
+  const float max_range = max_range_m * 1.001f + 0.01f;
+  absl::flat_hash_map<Int3, Table, Int3Hash, Int3Equal> submaps;
+  size_t size = 0;
+  for (uint32_t s = 0; s < n_submaps; ++s) {
+    Int3 key;
+    for (int a = 0; a < 3; ++a) RIM_RETURN_IF_ERROR(r->I32(&key[a]));
+    std::vector<uint32_t> voxels;
+    std::vector<float> rays;
+    RIM_RETURN_IF_ERROR(r->PodVector(&voxels));
+    RIM_RETURN_IF_ERROR(r->PodVector(&rays));
+    if (rays.size() != 6 * voxels.size())
+      return absl::DataLossError(
+          absl::StrCat("deferred points: sub-map ", s, ": ray and voxel counts differ"));
+    if (voxels.size() > size_t(max_per_submap_))
+      return absl::DataLossError(absl::StrCat("deferred points: sub-map ", s, " holds ",
+                                              voxels.size(), " rays, over the bound of ",
+                                              max_per_submap_));
+    if (submaps.count(key))
+      return absl::DataLossError(absl::StrCat("deferred points: sub-map ", s, " is repeated"));
+    Table& table = submaps[key];
+    table.reserve(voxels.size());
+    for (size_t i = 0; i < voxels.size(); ++i) {
+      Ray ray;
+      std::copy_n(&rays[6 * i], 3, ray.p);
+      std::copy_n(&rays[6 * i + 3], 3, ray.o);
+      const Vec3f p(ray.p[0], ray.p[1], ray.p[2]), o(ray.o[0], ray.o[1], ray.o[2]);
+      Int3 at;
+      uint32_t voxel;
+      if (!p.allFinite() || !o.allFinite() || !((p - o).norm() <= max_range) ||
+          !Locate(p, &at, &voxel) || at != key || voxel != voxels[i] ||
+          !table.try_emplace(voxel, ray).second)
+        return absl::DataLossError(absl::StrCat("deferred points: sub-map ", s, ", ray ", i,
+                                                " is not finite, too long or misfiled"));
+    }
+    size += voxels.size();
+  }
+  submaps_ = std::move(submaps);
+  size_ = size;
+  added_ = int64_t(added);
+  evicted_ = int64_t(evicted);
+  taken_ = int64_t(taken);
+  return absl::OkStatus();
+}
+
+}  // namespace rim
