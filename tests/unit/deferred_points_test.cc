@@ -19,7 +19,11 @@ namespace {
 
 // The maicity box: 20 x 20 x 6 m sub-maps, the sensor's band from 9 m below to 9 m above it.
 struct Fixture {
-  explicit Fixture(int max_per_submap = 100000) { deferred.max_points_per_submap = max_per_submap; }
+  // 10 cm voxels, so that the cases below can be written in round numbers.
+  explicit Fixture(int max_per_submap = 100000) {
+    deferred.voxel_m = 0.1f;
+    deferred.max_points_per_submap = max_per_submap;
+  }
   GridConfig grid;
   DeferredConfig deferred;
   MapGeometry geometry{grid};

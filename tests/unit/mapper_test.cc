@@ -216,7 +216,6 @@ TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxels) {
     if (!observed.count(c)) ADD_FAILURE() << "tiled only " << c[0] << " " << c[1] << " " << c[2];
   for (const auto& c : observed)
     if (!tiled.count(c)) ADD_FAILURE() << "observed only " << c[0] << " " << c[1] << " " << c[2];
-
 }
 
 // A wall 6.2 m ahead, 4 m tall. From the start the sensor sees its face up to the box's top, but
@@ -233,8 +232,7 @@ AnalyticScene WallAhead() {
 std::vector<float> UpperWallFace() {
   std::vector<float> xyz;
   for (float y = -1.45f; y <= 1.5f; y += 0.1f)
-    for (float z = 1.45f; z <= 1.96f; z += 0.1f)
-      xyz.insert(xyz.end(), {6.15f, y, z, 6.25f, y, z});
+    for (float z = 1.45f; z <= 1.96f; z += 0.1f) xyz.insert(xyz.end(), {6.15f, y, z, 6.25f, y, z});
   return xyz;
 }
 
@@ -253,7 +251,7 @@ TEST(MapperDeferredTest, SurfacesSeenFromOutsideTheBoxEnterTheMapWhenItArrives) 
   double fraction[2];
   for (bool enabled : {false, true}) {
     auto mapper =
-        Mapper::Create(SmallConfig({"decoder.freeze_after_frames=3",
+        Mapper::Create(SmallConfig({"decoder.freeze_after_frames=3", "deferred.voxel_m=0.1",
                                     std::string("deferred.enabled=") + (enabled ? "1" : "0")}));
     ASSERT_TRUE(mapper.ok());
     for (float x = 0.f; x <= 5.f; x += 1.f) {

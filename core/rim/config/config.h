@@ -86,7 +86,7 @@ struct BufferConfig {
 // sub-map and join the point buffer when the box covers them.
 struct DeferredConfig {
   bool enabled = true;   // ignored (nothing kept) when grid.sliding is false
-  float voxel_m = 0.1f;  // one ray kept per voxel of this size, the shortest-range one
+  float voxel_m = 0.2f;  // one ray kept per voxel of this size, the shortest-range one
   int max_points_per_submap = 100000;  // past it the longest-range rays are dropped first
 };
 
