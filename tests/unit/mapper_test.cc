@@ -68,6 +68,24 @@ std::vector<float> Probe() {
   return xyz;
 }
 
+// The path of the first file named `name` under `dir`, or "".
+std::string FindFile(const std::string& dir, const std::string& name) {
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
+    if (e.path().filename() == name) return e.path();
+  return "";
+}
+
+// XORs one byte of a file in place with `mask`.
+void FlipByte(const std::string& path, std::streamoff at, char mask) {
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekg(at);
+  char c;
+  f.read(&c, 1);
+  f.seekp(at);
+  c = char(c ^ mask);
+  f.write(&c, 1);
+}
+
 class MapperTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -290,19 +308,9 @@ TEST(MapperDeferredTest, DeferredRaysAreSavedAndACorruptFileIsDataLossNamingIt) 
   EXPECT_EQ(a.sdf, b.sdf);
   EXPECT_EQ(a.observed, b.observed);
 
-  std::string file;
-  for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
-    if (e.path().filename() == "deferred.rimf") file = e.path();
+  const std::string file = FindFile(dir, "deferred.rimf");
   ASSERT_FALSE(file.empty());
-  {
-    std::fstream f(file, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(60);
-    char c;
-    f.read(&c, 1);
-    f.seekp(60);
-    c = char(c ^ 0x21);
-    f.write(&c, 1);
-  }
+  FlipByte(file, 60, 0x21);
   auto corrupt = Mapper::Load(dir);
   EXPECT_EQ(corrupt.status().code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(corrupt.status().message()), HasSubstr("deferred.rimf"));
@@ -351,19 +359,9 @@ TEST_F(MapperTest, LoadErrorsNameTheFile) {
 
   ASSERT_TRUE(mapper_->Save(dir).ok());
   ASSERT_TRUE(Mapper::Load(dir).ok());
-  std::string state;
-  for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
-    if (e.path().filename() == "state.rimf") state = e.path();
+  const std::string state = FindFile(dir, "state.rimf");
   ASSERT_FALSE(state.empty());
-  {
-    std::fstream f(state, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(40);
-    char c;
-    f.read(&c, 1);
-    f.seekp(40);
-    c = char(c ^ 0x5a);
-    f.write(&c, 1);
-  }
+  FlipByte(state, 40, 0x5a);
   auto corrupt = Mapper::Load(dir);
   EXPECT_EQ(corrupt.status().code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(std::string(corrupt.status().message()), HasSubstr("state.rimf"));
