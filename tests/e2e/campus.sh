@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Real LiDAR: rim_map over the hku_campus walk (80 scans) with the campus preset. It must finish,
 # produce a mesh, and keep memory flat: RSS minus the global map (which grows with the area
-# walked) may not grow by more than 96 MB from frame 10 to the end.
+# walked) may not grow by more than 96 MB from frame 10 to the end. And no crack along the faces of
+# the last local box: the walk comes back, so that box's faces cut through mapped ground.
 # Usage: campus.sh BUILD_DIR [WORK_DIR]. Skips (exit 0 with a message) when the data is absent.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
@@ -32,3 +33,18 @@ ok = t["frames"] == 80 and size > 1e6 and growth < 96
 print("PASS" if ok else "FAIL")
 sys.exit(0 if ok else 1)
 PY
+
+# The last box of the campus preset: ±12 m about the last pose, placed in whole coarse voxels
+# (0.4 m), as MapGeometry::BoxOriginFor does.
+FACES="$(python3 - "$DATA/poses.txt" <<'PY'
+import math, sys
+last = [float(v) for v in open(sys.argv[1]).read().split("\n")[-2].split()]
+faces = []
+for axis, t in (("x", last[3]), ("y", last[7])):
+    lo = math.floor((t - 12.0) / 0.4 + 0.5) * 0.4
+    faces += ["%s=%.1f" % (axis, lo), "%s=%.1f" % (axis, lo + 24.0)]
+print(" ".join(faces))
+PY
+)"
+# shellcheck disable=SC2086
+python3 "$(dirname "$0")/plane_cracks.py" "$WORK/map/mesh.ply" $FACES
