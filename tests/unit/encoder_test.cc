@@ -17,7 +17,7 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 #include "rim/config/config.h"
 #include "rim/map/local_map.h"
 #include "rim/map/map_geometry.h"
@@ -475,8 +475,8 @@ TEST_F(EncoderTest, FeatureReaderReadsTheStoreOutsideTheBoxAndZerosWhereUnknown)
           for (float& v : f) v = u(rng);
           batch.points.push_back(g);
           batch.features.insert(batch.features.end(), f.begin(), f.end());
-          // The store keeps half floats: reads give the written values rounded to half.
-          for (float& v : f) v = RoundToHalf(v);
+          // The store keeps 8-bit rows: reads give the written row rounded (RoundRow8).
+          RoundRow8(f.data(), D);
           world[{l, x, y, z}] = f;
           if (l == 0) {
             const uint8_t obs = uint8_t(rng() & 1);

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 #include "rim/config/config.h"
 #include "rim/map/map_geometry.h"
 #include "rim/map/slab_saver.h"
@@ -98,10 +98,10 @@ class SlidingHarness {
         ++it;
       }
     }
-    // The global map keeps features as half floats: what left reads back rounded.
+    // The global map keeps features as 8-bit rows: what left reads back rounded.
     for (auto& [k, voxel] : ref_)
       if (!map_.InBox(k[0], Int3(k[1], k[2], k[3])))
-        for (float& f : voxel.features) f = RoundToHalf(f);
+        RoundRow8(voxel.features.data(), int(voxel.features.size()));
   }
 
   // Writes random features and optimiser state into `count` random in-box voxels, as training

@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 #include "rim/config/config.h"
 #include "rim/map/map_geometry.h"
 #include "rim/map/slab_saver.h"
@@ -30,10 +30,17 @@
 namespace rim {
 namespace {
 
-std::vector<uint16_t> Halves(const std::vector<float>& v) {
-  std::vector<uint16_t> h(v.size());
-  for (size_t i = 0; i < v.size(); ++i) h[i] = FloatToHalf(v[i]);
-  return h;
+// One row of features as the store keeps it (rim/base/row8.h).
+std::vector<int8_t> Row8(const std::vector<float>& v) {
+  std::vector<int8_t> q(Row8Bytes(int(v.size())));
+  EncodeRows8(v.data(), 1, int(v.size()), q.data());
+  return q;
+}
+
+// What a row reads back as from the store.
+std::vector<float> Rounded(std::vector<float> v) {
+  RoundRow8(v.data(), int(v.size()));
+  return v;
 }
 
 namespace fs = std::filesystem;
@@ -100,11 +107,12 @@ void WriteRandomVoxels(SubmapStore* store, Reference* ref, std::mt19937_64* rng,
     batch.points.push_back(g);
     Expected e;
     for (int d = 0; d < D; ++d) {
-      // The store keeps half floats: it reads back the written value rounded to half precision.
       const float v = value(*rng);
       batch.features.push_back(v);
-      e.features.push_back(RoundToHalf(v));
+      e.features.push_back(v);
     }
+    // The store keeps 8-bit rows: it reads back the written row rounded (RoundRow8).
+    e.features = Rounded(e.features);
     e.observed = l == 0 ? uint8_t((*rng)() % 2) : 0;
     if (l == 0) batch.observed.push_back(e.observed);
     (*ref)[{l, g.x(), g.y(), g.z()}] = e;
@@ -396,7 +404,8 @@ TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
     auto block = store.ReadBlock(l, g);
     ASSERT_NE(block, nullptr);
     const SubmapStore::BlockAddress a = store.Address(l, g);
-    ASSERT_EQ(std::memcmp(&block->features[size_t(a.index) * D], Halves(e.features).data(), 2 * D),
+    ASSERT_EQ(std::memcmp(&block->features[size_t(a.index) * Row8Bytes(D)], Row8(e.features).data(),
+                          Row8Bytes(D)),
               0);
     if (l == 0) {
       ASSERT_EQ(block->observed[size_t(a.index)], e.observed);
@@ -422,7 +431,9 @@ TEST_F(SubmapStoreTest, ReadBlockSharesBlocksAndCopiesOnWrite) {
   batch.features.assign(D, 42.f);
   if (l == 0) batch.observed.push_back(1);
   store.Write(batch);
-  EXPECT_EQ(std::memcmp(&held->features[size_t(index) * D], Halves(e.features).data(), 2 * D), 0);
+  EXPECT_EQ(std::memcmp(&held->features[size_t(index) * Row8Bytes(D)], Row8(e.features).data(),
+                        Row8Bytes(D)),
+            0);
   ASSERT_TRUE(store.Read(l, Int3(x, y, z), f.data(), nullptr));
   EXPECT_EQ(f, std::vector<float>(D, 42.f));
   EXPECT_NE(store.ReadBlock(l, Int3(x, y, z)).get(), held.get());
@@ -432,8 +443,9 @@ TEST_F(SubmapStoreTest, SparseStorageCountsBlocks) {
   const int B = config_.submap.block_size;
   const int D = geometry_.feature_dim();
   const int64_t b3 = int64_t(B) * B * B;
-  const int64_t level0_bytes = b3 * D * 2 + b3;  // half-float features, observed bytes
-  const int64_t upper_bytes = b3 * D * 2;
+  // 8-bit feature rows (D values and an exponent), and observed bytes at level 0.
+  const int64_t level0_bytes = b3 * (D + 1) + b3;
+  const int64_t upper_bytes = b3 * (D + 1);
   SubmapStore store(geometry_, config_.submap);
   EXPECT_EQ(store.Stats().blocks, 0);
   EXPECT_EQ(store.Stats().host_bytes, 0);
@@ -776,8 +788,8 @@ TEST_F(SubmapStoreTest, BackgroundSaverWithConcurrentReaders) {
     for (const auto& [key, v] : ref) {
       const auto [l, x, y, z] = key;
       uint8_t obs = 0;
-      if (!store.Read(l, Int3(x, y, z), f.data(), &obs) ||
-          f != std::vector<float>(D, RoundToHalf(v)) || (l == 0 && obs != (uint8_t(v) & 1)))
+      if (!store.Read(l, Int3(x, y, z), f.data(), &obs) || f != Rounded(std::vector<float>(D, v)) ||
+          (l == 0 && obs != (uint8_t(v) & 1)))
         ++bad;
     }
     EXPECT_EQ(bad, 0);

@@ -12,7 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "rim/base/binary_io.h"
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 #include "rim/base/status_macros.h"
 
 namespace rim {
@@ -26,7 +26,7 @@ SubmapStore::SubmapStore(const MapGeometry& geometry, const SubmapConfig& config
 
 int64_t SubmapStore::BlockBytes(int level) const {
   const int64_t b3 = int64_t(config_.block_size) * config_.block_size * config_.block_size;
-  return b3 * geometry_.feature_dim() * int64_t(sizeof(uint16_t)) + (level == 0 ? b3 : 0);
+  return b3 * int64_t(Row8Bytes(geometry_.feature_dim())) + (level == 0 ? b3 : 0);
 }
 
 std::string SubmapStore::SpillPath(const Int3& key) const {
@@ -91,7 +91,7 @@ void SubmapStore::Write(const SlabBatch& batch) {
     auto [it, inserted] = cached_submap->blocks[l].try_emplace(block_key);
     if (inserted) {
       it->second = std::make_shared<Block>();
-      it->second->features.assign(size_t(B) * B * B * D, uint16_t(0));
+      it->second->features.assign(size_t(B) * B * B * Row8Bytes(D), int8_t(0));
       if (l == 0) it->second->observed.assign(size_t(B) * B * B, 0);
       cached_submap->bytes += BlockBytes(l);
       host_bytes_ += BlockBytes(l);
@@ -110,7 +110,7 @@ void SubmapStore::Write(const SlabBatch& batch) {
     while (i + len < n && len < size_t(room) && batch.points[i + len].z() == g.z() + int(len) &&
            batch.points[i + len].x() == g.x() && batch.points[i + len].y() == g.y())
       ++len;
-    FloatsToHalves(&batch.features[i * D], len * D, &block.features[idx * D]);
+    EncodeRows8(&batch.features[i * D], len, D, &block.features[idx * Row8Bytes(D)]);
     if (l == 0)
       for (size_t k = 0; k < len && i + k < batch.observed.size(); ++k)
         block.observed[idx + k] = batch.observed[i + k];
@@ -131,7 +131,7 @@ bool SubmapStore::Read(int level, const Int3& g, float* features, uint8_t* obser
   if (it == s->blocks[level].end()) return false;
   const Int3 in = local - block_key * B;
   const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
-  HalvesToFloats(&it->second->features[idx * D], size_t(D), features);
+  DecodeRows8(&it->second->features[idx * Row8Bytes(D)], 1, D, features);
   if (observed) *observed = level == 0 ? it->second->observed[idx] : 0;
   return true;
 }
@@ -191,7 +191,7 @@ bool SubmapStore::CachedReader::Read(int level, const Int3& g, float* features, 
   const Block* b = block_[level];
   if (b == nullptr) return false;
   const size_t D = size_t(store_.geometry_.feature_dim()), index = size_t(index_[level]);
-  HalvesToFloats(&b->features[index * D], D, features);
+  DecodeRows8(&b->features[index * Row8Bytes(int(D))], 1, int(D), features);
   if (observed) *observed = level == 0 ? b->observed[index] : 0;
   return true;
 }
@@ -219,7 +219,8 @@ void SubmapStore::CachedReader::ReadRun(int level, const Int3& g, int n, float* 
           Int3(sub_origin[0] + block[0] * B, sub_origin[1] + block[1] * B, block_z0));
     if (const Block* b = block_[level]) {
       const size_t index = size_t(xy_index + z - block_z0);
-      HalvesToFloats(&b->features[index * D], size_t(len) * D, features + size_t(i) * D);
+      DecodeRows8(&b->features[index * Row8Bytes(int(D))], size_t(len), int(D),
+                  features + size_t(i) * D);
       for (int k = 0; k < len; ++k)
         flags[i + k] = LocalMap::kHasData |
                        (level == 0 ? b->observed[index + k] & LocalMap::kObservedBits : 0);

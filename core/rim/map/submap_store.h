@@ -34,7 +34,7 @@ class SubmapStore {
   SubmapStore(const MapGeometry& geometry, const SubmapConfig& config);
 
   // Stores the voxels of a slab that left the local map, replacing what was there (features
-  // rounded to half precision, RoundToHalf).
+  // rounded to 8-bit rows, RoundRow8).
   void Write(const SlabBatch& batch);
   // Reads one voxel; false (and nothing written) when the store has no data there.
   bool Read(int level, const Int3& g, float* features, uint8_t* observed) const;
@@ -48,12 +48,12 @@ class SubmapStore {
   BlockAddress Address(int level, const Int3& g) const;
   int block_voxels() const { return config_.block_size * config_.block_size * config_.block_size; }
 
-  // Features are stored as IEEE half floats (rim/base/half.h): the global map is most of a long
-  // session's memory, and features that no longer train lose nothing that matters at 11
-  // significant bits (relative error ≤ 2^-11; DESIGN.md's accuracy checks run on the result).
+  // Features are stored as 8-bit rows with a shared power-of-two scale (rim/base/row8.h): the
+  // global map is most of a long session's memory, and features that no longer train lose
+  // nothing that the mesh metrics see (error under 0.8 % of a row's largest value; BENCHMARK.md).
   struct Block {
-    std::vector<uint16_t> features;  // block³ · D halves, index (x·B + y)·B + z
-    std::vector<uint8_t> observed;   // block³, level 0 only
+    std::vector<int8_t> features;   // block³ rows of Row8Bytes(D), index (x·B + y)·B + z
+    std::vector<uint8_t> observed;  // block³, level 0 only
   };
   // The block holding lattice point g, shared and immutable: a later Write to it copies it
   // first, so a reader may keep using what it got without a lock. Null when the store has no

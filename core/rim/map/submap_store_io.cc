@@ -10,7 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "rim/base/binary_io.h"
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 #include "rim/base/status_macros.h"
 #include "rim/map/submap_store.h"
 
@@ -39,11 +39,13 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
       w.I32(kv->first.x());
       w.I32(kv->first.y());
       w.I32(kv->first.z());
-      // On disk as float32, the format checkpoints have always had: the halves widen exactly,
-      // and narrow back to the same halves on load.
-      const std::vector<uint16_t>& h = kv->second->features;
-      wide.resize(h.size());
-      HalvesToFloats(h.data(), h.size(), wide.data());
+      // On disk as float32, the format checkpoints have always had: the 8-bit rows widen
+      // exactly, and encode back to the same bytes on load.
+      const std::vector<int8_t>& q = kv->second->features;
+      const int D = geometry_.feature_dim();
+      const size_t rows = q.size() / Row8Bytes(D);
+      wide.resize(rows * size_t(D));
+      DecodeRows8(q.data(), rows, D, wide.data());
       w.FloatArray(wide.data(), wide.size());
       w.PodVector(kv->second->observed);
     }
@@ -115,8 +117,8 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
       RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));
       if (wide.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
         return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
-      b->features.resize(wide.size());
-      FloatsToHalves(wide.data(), wide.size(), b->features.data());
+      b->features.resize(b3 * Row8Bytes(int(dim)));
+      EncodeRows8(wide.data(), b3, int(dim), b->features.data());
       s.blocks[l].emplace(bk, std::move(b));
       s.bytes += BlockBytes(l);
     }

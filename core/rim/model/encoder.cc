@@ -4,7 +4,7 @@
 #include <cmath>
 #include <cstring>
 
-#include "rim/base/half.h"
+#include "rim/base/row8.h"
 
 namespace rim {
 
@@ -194,7 +194,7 @@ const float* FeatureReader::Get(int level, const Int3& g) {
   const Slot s = Fetch(level, g);
   if (s.block == nullptr) return zeros_.data();
   const size_t D = size_t(map_.geometry().feature_dim());
-  HalvesToFloats(&s.block->features[size_t(s.index) * D], D, widened_.data());
+  DecodeRows8(&s.block->features[size_t(s.index) * Row8Bytes(int(D))], 1, int(D), widened_.data());
   return widened_.data();
 }
 
