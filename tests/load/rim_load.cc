@@ -1,18 +1,32 @@
 // rim_load: a bounded load generator for a rim_server on this machine (loopback only).
 //
 // N robots stream 64-beam synthetic-city scans at a fixed rate, M planners send query batches
-// back to back, K dashboards watch mesh tiles, all for a fixed duration. At the end it prints what
-// the server sustained: frames integrated per robot, the lowest iterations per frame and the
-// largest lag the acks reported, query latency quantiles, tiles received, and the sessions' host
-// memory. The server is expected to degrade by design (fewer iterations, then backpressure), never
-// to fail or drop an accepted scan: the exit status is non-zero if any scan was rejected, any RPC
+// (back to back, or --query-rate batches per second each), K dashboards watch mesh tiles, all for
+// a fixed duration. At the end it prints what the server sustained: frames integrated per robot,
+// the median and lowest iterations per frame and the largest lag the acks reported, query latency
+// quantiles, tiles received and their latency, and the sessions' host memory.
+//
+// Tile latency: from the integration that made a tile version (the first INTEGRATED ack whose map
+// version reached it, as received here) to the tile's arrival at the watcher. Both ends are
+// timed by this process's clock; the ack's own trip (loopback, well under a millisecond) makes it
+// read a little short.
+//
+// The summary lines keep these forms, which scripts parse:
+//   "  ROBOT: sent N, accepted N, integrated N (N frames/s), rejected N, lowest iterations/frame
+//    N, median iterations/frame N, largest lag N frames"
+//   "  queries: N batches, N points, latency p50 N ms, p99 N ms"
+//   "  tiles watched: N (N MB), tile latency p95 N ms"
+//
+// The server is expected to degrade by design (fewer iterations, then backpressure), never to
+// fail or drop an accepted scan: the exit status is non-zero if any scan was rejected, any RPC
 // failed, or a session's integrated count differs from its accepted count.
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
-//                 [--rate 10] [--duration 60] [--batch 10000] [--frames 40]
+//                 [--rate 10] [--duration 60] [--batch 10000] [--frames 40] [--query-rate 0]
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -32,6 +46,7 @@ struct Options {
   std::string server;
   int robots = 2, planners = 2, dashboards = 1, batch = 10000, frames = 40;
   double rate_hz = 10, duration_s = 60;
+  double query_rate_hz = 0;  // batches per second per planner; 0: back to back
 };
 
 bool Loopback(const std::string& address) {
@@ -58,13 +73,16 @@ bool Parse(int argc, char** argv, Options* o) {
       o->batch = std::atoi(v.c_str());
     else if (k == "--frames")
       o->frames = std::atoi(v.c_str());
+    else if (k == "--query-rate")
+      o->query_rate_hz = std::atof(v.c_str());
     else
       return false;
   }
   return (argc % 2) == 1 && !o->server.empty() && o->robots >= 0 && o->robots <= 16 &&
          o->planners >= 0 && o->planners <= 16 && o->dashboards >= 0 && o->dashboards <= 16 &&
          o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
-         o->batch <= 1000000 && o->frames > 0 && o->frames <= 1000;
+         o->batch <= 1000000 && o->frames > 0 && o->frames <= 1000 &&
+         std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000;
 }
 
 double Quantile(std::vector<double> v, double q) {
@@ -81,7 +99,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr,
                  "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
                  "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
-                 "[--frames F]\n");
+                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back]\n");
     return 2;
   }
   if (!Loopback(o.server)) {
@@ -111,6 +129,12 @@ int main(int argc, char** argv) {
   std::vector<rim::StreamSummary> summaries(o.robots);
   std::vector<uint32_t> min_iterations(o.robots, 1u << 30);
   std::vector<uint64_t> max_lag(o.robots, 0);
+  std::vector<std::vector<double>> iterations(o.robots);
+  // Per robot: the map version of each INTEGRATED ack and when it arrived, in arrival order
+  // (map versions only grow).
+  using Clock = std::chrono::steady_clock;
+  std::vector<std::vector<std::pair<uint64_t, Clock::time_point>>> integrations(o.robots);
+  std::vector<double> tile_latency_ms;
   std::atomic<uint64_t> tiles{0}, tile_bytes{0}, query_points{0};
 
   for (int r = 0; r < o.robots; ++r) {
@@ -130,8 +154,11 @@ int main(int argc, char** argv) {
       options.rate_hz = o.rate_hz;
       options.on_ack = [&, r](const rim::v1::ScanAck& ack) {
         std::lock_guard<std::mutex> lock(mu);
-        if (ack.state() == rim::v1::ScanAck::INTEGRATED)
+        if (ack.state() == rim::v1::ScanAck::INTEGRATED) {
           min_iterations[r] = std::min(min_iterations[r], ack.iterations());
+          iterations[r].push_back(ack.iterations());
+          integrations[r].emplace_back(ack.map_version(), Clock::now());
+        }
         max_lag[r] = std::max(max_lag[r], ack.lag_frames());
       };
       auto summary = client->Session(robots[r]).Stream(
@@ -149,7 +176,15 @@ int main(int argc, char** argv) {
     threads.emplace_back([&, p] {
       std::mt19937 rng(p);
       std::uniform_real_distribution<float> u(-10.f, 10.f);
+      auto next = Clock::now();
       while (std::chrono::steady_clock::now() < deadline) {
+        if (o.query_rate_hz > 0) {
+          // A fixed schedule: a late batch does not push the later ones back.
+          std::this_thread::sleep_until(next);
+          next += std::chrono::duration_cast<Clock::duration>(
+              std::chrono::duration<double>(1.0 / o.query_rate_hz));
+          if (Clock::now() >= deadline) break;
+        }
         const rim::PosedScan& near = frames[rng() % frames.size()];
         const rim::Vec3d c = near.T_world_sensor.translation();
         std::vector<rim::Vec3f> points(o.batch);
@@ -173,14 +208,27 @@ int main(int argc, char** argv) {
     threads.emplace_back([&, d] {
       rim::WatchOptions options;
       options.duration = std::chrono::milliseconds(int64_t(o.duration_s * 1000));
-      const absl::Status s = client->Session(robots[d % robots.size()])
-                                 .Watch(
-                                     [&](const rim::DecodedTile& t) {
-                                       ++tiles;
-                                       tile_bytes += t.draco.size();
-                                       return true;
-                                     },
-                                     options);
+      const absl::Status s =
+          client->Session(robots[d % robots.size()])
+              .Watch(
+                  [&, d](const rim::DecodedTile& t) {
+                    const auto arrived = Clock::now();
+                    ++tiles;
+                    tile_bytes += t.draco.size();
+                    const size_t r = size_t(d) % robots.size();
+                    std::lock_guard<std::mutex> lock(mu);
+                    const auto& made = integrations[r];
+                    auto it =
+                        std::lower_bound(made.begin(), made.end(), t.version,
+                                         [](const auto& e, uint64_t v) { return e.first < v; });
+                    // A version from before this run (or from an ack not yet
+                    // seen) has no integration here to time from.
+                    if (it != made.end())
+                      tile_latency_ms.push_back(
+                          std::chrono::duration<double, std::milli>(arrived - it->second).count());
+                    return true;
+                  },
+                  options);
       if (!s.ok()) failed = true;
     });
   }
@@ -201,17 +249,18 @@ int main(int argc, char** argv) {
     const rim::StreamSummary& s = summaries[r];
     std::printf(
         "  %s: sent %llu, accepted %llu, integrated %llu (%.2f frames/s), rejected %llu, "
-        "lowest iterations/frame %u, largest lag %llu frames\n",
+        "lowest iterations/frame %u, median iterations/frame %.0f, largest lag %llu frames\n",
         robots[r].c_str(), (unsigned long long)s.sent, (unsigned long long)s.accepted,
         (unsigned long long)s.integrated, s.seconds > 0 ? s.integrated / s.seconds : 0.0,
         (unsigned long long)s.rejected, min_iterations[r] == (1u << 30) ? 0 : min_iterations[r],
-        (unsigned long long)max_lag[r]);
+        Quantile(iterations[r], 0.5), (unsigned long long)max_lag[r]);
   }
   std::printf("  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms\n",
               query_ms.size(), (unsigned long long)query_points.load(), Quantile(query_ms, 0.5),
               Quantile(query_ms, 0.99));
-  std::printf("  tiles watched: %llu (%.1f MB)\n", (unsigned long long)tiles.load(),
-              tile_bytes.load() / 1e6);
+  std::printf("  tiles watched: %llu (%.1f MB), tile latency p95 %.0f ms\n",
+              (unsigned long long)tiles.load(), tile_bytes.load() / 1e6,
+              Quantile(tile_latency_ms, 0.95));
   std::printf("  sessions' host memory at the end: %.0f MB\n", memory / 1e6);
   for (const auto& r : robots) (void)client->CloseSession(r, false);
   if (failed || !consistent) {
