@@ -1,8 +1,11 @@
 // rim_map: offline mapping of a dataset with the core mapper, no server.
 //
 //   rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]
-//           [--config FILE] [--tiles]
+//           [--config FILE] [--tiles] [--probe metric|neural]
 //
+// --probe scores the distances the final map answers against the dataset's ground truth
+// (rim_sim's gt.ply and gt_observed.ply) at free-space points on its rays (eval/distance_probe.h):
+// `metric` asks QuerySdf, `neural` the network's own values. Writes DIR/probe.json.
 // Writes DIR/mesh.ply (all tiles, welded), DIR/tiles/*.ply with --tiles, DIR/timing.json
 // (per-stage mean times, ms/frame, frames/s, peak and per-frame memory) and DIR/run.json (config
 // and versions), and prints the per-stage table in the layout of the paper's module-time table.
@@ -23,8 +26,10 @@
 #include "rim/base/status_macros.h"
 #include "rim/base/version.h"
 #include "rim/config/config.h"
+#include "rim/eval/distance_probe.h"
 #include "rim/io/dataset.h"
 #include "rim/io/mesh_io.h"
+#include "rim/io/ply_points.h"
 #include "rim/map/submap_store.h"
 #include "rim/mapper.h"
 
@@ -36,11 +41,12 @@ struct Args {
   std::vector<std::string> overrides;
   long first = 0, last = -1;  // [first, last), last < 0: to the end
   bool tiles = false;
+  std::string probe;  // "", "metric" or "neural"
 };
 
 constexpr char kUsage[] =
     "usage: rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]\n"
-    "               [--config FILE] [--tiles]\n";
+    "               [--config FILE] [--tiles] [--probe metric|neural]\n";
 
 absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
   Args a;
@@ -61,6 +67,11 @@ absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
       a.overrides.push_back(kv);
     } else if (arg == "--tiles") {
       a.tiles = true;
+    } else if (arg == "--probe") {
+      RIM_ASSIGN_OR_RETURN(a.probe, value("--probe"));
+      if (a.probe != "metric" && a.probe != "neural")
+        return absl::InvalidArgumentError(
+            absl::StrCat("--probe '", a.probe, "' is not metric or neural"));
     } else if (arg == "--frames") {
       RIM_ASSIGN_OR_RETURN(std::string range, value("--frames"));
       std::vector<std::string> parts = absl::StrSplit(range, ':');
@@ -136,7 +147,7 @@ absl::Status Run(const Args& args) {
   RIM_ASSIGN_OR_RETURN(auto mapper, Mapper::Create(config));
 
   StageTimings sum;
-  std::vector<double> rss_mb, submap_mb, deferred_mb, ms_per_frame;
+  std::vector<double> rss_mb, submap_mb, deferred_mb, distance_mb, ms_per_frame;
   const auto start = std::chrono::steady_clock::now();
   for (long i = first; i < last; ++i) {
     RIM_ASSIGN_OR_RETURN(PosedScan scan, dataset->Read(size_t(i)));
@@ -147,6 +158,7 @@ absl::Status Run(const Args& args) {
     const MapperStats stats = mapper->Stats();
     submap_mb.push_back(double(stats.submap_bytes) / (1024.0 * 1024.0));
     deferred_mb.push_back(double(stats.deferred_bytes) / (1024.0 * 1024.0));
+    distance_mb.push_back(double(stats.distance_bytes) / (1024.0 * 1024.0));
     ms_per_frame.push_back(1e3 * t.total_s);
     ProgressBar(size_t(i - first + 1), size_t(last - first),
                 1e3 * sum.total_s / double(i - first + 1), t.loss);
@@ -154,6 +166,8 @@ absl::Status Run(const Args& args) {
   std::fprintf(stderr, "\n");
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  // Queries after the run see the final map.
+  const double final_refresh_s = mapper->RefreshDistanceField();
 
   // Mesh every tile and weld the shared border vertices.
   const auto mesh_start = std::chrono::steady_clock::now();
@@ -182,7 +196,7 @@ absl::Status Run(const Args& args) {
   const Row rows[] = {{"slide", sum.slide_s, false},    {"preprocess", sum.preprocess_s, false},
                       {"sample", sum.sample_s, true},   {"encode", sum.encode_s, true},
                       {"forward", sum.forward_s, true}, {"backward", sum.backward_s, true},
-                      {"step", sum.step_s, true}};
+                      {"step", sum.step_s, true},       {"distance", sum.distance_s, false}};
   std::printf("\n%-12s %12s %12s\n", "module", "ms/frame", "ms/iter");
   for (const Row& r : rows) {
     if (r.per_iteration)
@@ -196,6 +210,10 @@ absl::Status Run(const Args& args) {
               iters / frames, frames / wall_s, PeakRssMb());
   std::printf("mesh: %zu vertices, %zu faces in %.1f s -> %s/mesh.ply\n", merged.vertices.size(),
               merged.faces.size(), mesh_s, args.out.c_str());
+  const MapperStats final_stats = mapper->Stats();
+  std::printf("distance field: %lld surfels, %.1f MB, final refresh %.0f ms\n",
+              (long long)final_stats.distance_surfels, double(final_stats.distance_bytes) / 1e6,
+              1e3 * final_refresh_s);
 
   std::string timing = "{\n  \"stages_ms_per_frame\": {";
   for (const Row& r : rows)
@@ -222,6 +240,9 @@ absl::Status Run(const Args& args) {
   timing += "],\n  \"deferred_mb_per_frame\": [";
   for (size_t i = 0; i < deferred_mb.size(); ++i)
     absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", deferred_mb[i]);
+  timing += "],\n  \"distance_mb_per_frame\": [";
+  for (size_t i = 0; i < distance_mb.size(); ++i)
+    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", distance_mb[i]);
   timing += "],\n  \"ms_per_frame_series\": [";
   for (size_t i = 0; i < ms_per_frame.size(); ++i)
     absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", ms_per_frame[i]);
@@ -247,6 +268,32 @@ absl::Status Run(const Args& args) {
     std::ofstream f(args.out + "/" + name);
     f << text;
     if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/", name));
+  }
+  if (!args.probe.empty()) {
+    RIM_ASSIGN_OR_RETURN(Mesh gt, ReadMeshPly(args.dataset + "/gt.ply"));
+    RIM_ASSIGN_OR_RETURN(io::PointCloud hits, io::ReadPlyPoints(args.dataset + "/gt_observed.ply"));
+    std::vector<std::array<float, 3>> seen(hits.points.size());
+    for (size_t i = 0; i < seen.size(); ++i)
+      seen[i] = {hits.points[i].x(), hits.points[i].y(), hits.points[i].z()};
+    const bool neural = args.probe == "neural";
+    auto query = [&](const std::vector<float>& xyz, std::vector<float>* sdf,
+                     std::vector<float>* grad, std::vector<uint8_t>* observed) -> absl::Status {
+      QueryResult q;
+      RIM_RETURN_IF_ERROR(neural ? mapper->QueryNeural(xyz.data(), xyz.size() / 3, true, &q)
+                                 : mapper->QuerySdf(xyz.data(), xyz.size() / 3, true, &q));
+      *sdf = std::move(q.sdf);
+      *grad = std::move(q.gradient);
+      *observed = std::move(q.observed);
+      return absl::OkStatus();
+    };
+    eval::ProbeOptions options;
+    options.threads = config.train.threads;
+    RIM_ASSIGN_OR_RETURN(eval::ProbeReport report,
+                         eval::RunDistanceProbe(*dataset, gt, seen, query, options));
+    std::printf("\nprobe (%s):\n%s", args.probe.c_str(), eval::ProbeReportTable(report).c_str());
+    std::ofstream f(args.out + "/probe.json");
+    f << eval::ProbeReportJson(report);
+    if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/probe.json"));
   }
   return absl::OkStatus();
 }

@@ -161,6 +161,10 @@ absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& li
   std::string* observed = response->mutable_observed();
   observed->resize(result.observed.size());
   for (size_t i = 0; i < result.observed.size(); ++i) (*observed)[i] = result.observed[i] ? 1 : 0;
+  std::string* saturated = response->mutable_saturated();
+  saturated->resize(result.saturated.size());
+  for (size_t i = 0; i < result.saturated.size(); ++i)
+    (*saturated)[i] = result.saturated[i] ? 1 : 0;
   response->set_map_version(result.map_version);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

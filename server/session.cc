@@ -195,6 +195,15 @@ void Session::Run() {
       std::optional<ComputeScheduler::Lease> slot;
       if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
       status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+      // Nothing waiting: bring the distance field up to this frame before it is acknowledged,
+      // so that a planner that waited for the ack reads distances from it.
+      bool idle;
+      {
+        std::lock_guard<std::mutex> relock(mu_);
+        idle = queue_.empty();
+      }
+      if (status.ok() && idle && mapper_->DistanceFieldBehind())
+        timing.distance_s += mapper_->RefreshDistanceField();
     }
 
     if (options_.events) {

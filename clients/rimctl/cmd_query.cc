@@ -16,7 +16,7 @@ namespace {
 
 constexpr char kQueryUsage[] = R"(usage:
   rimctl query ROBOT_ID --points FILE|- [--gradient] [--format csv|npy] [--out FILE]
-  rimctl query ROBOT_ID --grid x0,y0,z0,x1,y1,z1,res --out slice.png [--range M]
+  rimctl query ROBOT_ID --grid x0,y0,z0,x1,y1,z1,res --out slice.png [--range M] [--contours M]
 
 --points reads CSV x,y,z lines (world frame, metres; a header line is optional; '-' is stdin)
 and writes CSV with the header x,y,z,sdf,observed (plus ,gx,gy,gz with --gradient), observed as
@@ -27,7 +27,8 @@ Batches above the server's max query points are sent in chunks.
 --grid queries a regular grid on an axis-aligned plane (one extent flat, e.g. z0 == z1) with
 cells of res metres and writes a PNG: blue inside, red outside, the surface dark, never observed
 cells grey. --range M sets the |sdf| at the ends of the colour scale (default: the 98th
-percentile over observed cells).
+percentile over observed cells). Contour lines are drawn every --contours M metres of distance
+(default 0.25; 0 draws none).
 )";
 
 absl::StatusOr<std::string> ReadInput(const std::string& path) {
@@ -99,20 +100,23 @@ int QueryGrid(const Args& args, const std::string& robot, const Io& io) {
   auto range = args.GetDouble("range", 0, 0, 1e6);
   if (!range.ok())
     return UsageError(io, "query", std::string(range.status().message()), kQueryUsage);
+  auto contours = args.GetDouble("contours", 0.25, 0, 1e3);
+  if (!contours.ok())
+    return UsageError(io, "query", std::string(contours.status().message()), kQueryUsage);
 
   auto client = ConnectFromArgs(args);
   if (!client.ok()) return Fail(io, client.status());
   auto result = client->Session(robot).Query(grid->Points(), false);
   if (!result.ok()) return Fail(io, result.status());
-  const SliceImage image = RenderSlice(*grid, *result, *range);
+  const SliceImage image = RenderSlice(*grid, *result, *range, 256, *contours);
   const absl::Status written =
       io::WritePngRgb8(out_path, image.width, image.height, image.rgb.data());
   if (!written.ok()) return Fail(io, written);
   io.out << absl::StrFormat(
-      "slice %s: %d x %d cells of %g m (%u observed), sdf colour range +-%.3g m, map version %u "
-      "-> %s\n",
+      "slice %s: %d x %d cells of %g m (%u observed), distance colour range +-%.3g m, contours "
+      "every %g m, map version %u -> %s\n",
       grid->PlaneName(), grid->width, grid->height, grid->resolution_m, image.observed_cells,
-      image.range_m, result->map_version, out_path);
+      image.range_m, *contours, result->map_version, out_path);
   return kExitOk;
 }
 
@@ -124,7 +128,8 @@ int RunQuery(const std::vector<std::string>& words, const Io& io) {
                                                   {"gradient", FlagKind::kBool},
                                                   {"format", FlagKind::kValue},
                                                   {"out", FlagKind::kValue},
-                                                  {"range", FlagKind::kValue}}));
+                                                  {"range", FlagKind::kValue},
+                                                  {"contours", FlagKind::kValue}}));
   if (!args.ok()) {
     return UsageError(io, "query", std::string(args.status().message()), kQueryUsage);
   }
@@ -135,8 +140,11 @@ int RunQuery(const std::vector<std::string>& words, const Io& io) {
   if (args->Has("points") == args->Has("grid")) {
     return UsageError(io, "query", "give either --points FILE or --grid SPEC", kQueryUsage);
   }
-  if (args->Has("range") && !args->Has("grid")) {
-    return UsageError(io, "query", "--range only applies to --grid", kQueryUsage);
+  for (const char* flag : {"range", "contours"}) {
+    if (args->Has(flag) && !args->Has("grid")) {
+      return UsageError(io, "query", absl::StrCat("--", flag, " only applies to --grid"),
+                        kQueryUsage);
+    }
   }
   const std::string& robot = args->positional()[0];
   return args->Has("grid") ? QueryGrid(*args, robot, io) : QueryPoints(*args, robot, io);

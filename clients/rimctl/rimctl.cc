@@ -21,7 +21,7 @@ commands:
   stream ROBOT_ID DATASET [--rate HZ] [--frames A:B]
                                          DATASET: a dataset folder, or sim:city[?frames=N&...]
   query ROBOT_ID --points FILE|- [--gradient] [--format csv|npy] [--out FILE]
-  query ROBOT_ID --grid x0,y0,z0,x1,y1,z1,res --out slice.png [--range M]
+  query ROBOT_ID --grid x0,y0,z0,x1,y1,z1,res --out slice.png [--range M] [--contours M]
   mesh ROBOT_ID --out DIR [--since V]    .drc tiles and a merged, welded mesh.ply
   watch ROBOT_ID [--count N] [--duration S] [--since V]
 

@@ -90,7 +90,7 @@ std::array<uint8_t, 3> DivergingColour(double t) {
 }
 
 SliceImage RenderSlice(const SliceGrid& grid, const QueryResult& result, double range_m,
-                       int min_side_px) {
+                       int min_side_px, double contour_m) {
   const int w = grid.width, h = grid.height;
   auto at = [&](int col, int row) { return size_t(row) * w + col; };
   SliceImage image;
@@ -128,6 +128,19 @@ SliceImage RenderSlice(const SliceGrid& grid, const QueryResult& result, double 
           if (nc < 0 || nr < 0 || nc >= w || nr >= h) continue;
           const size_t j = at(nc, nr);
           if (result.observed[j] && (result.sdf[j] < 0) != inside && !inside) c = kZeroCrossing;
+        }
+        if (contour_m > 0 && c != kZeroCrossing) {
+          const double band = std::floor(result.sdf[i] / contour_m);
+          bool line = false;
+          for (const auto& [dc, dr] :
+               {std::pair{1, 0}, std::pair{0, 1}, std::pair{-1, 0}, std::pair{0, -1}}) {
+            const int nc = col + dc, nr = row + dr;
+            if (nc < 0 || nr < 0 || nc >= w || nr >= h) continue;
+            const size_t j = at(nc, nr);
+            line = line || (result.observed[j] && std::floor(result.sdf[j] / contour_m) < band);
+          }
+          if (line)
+            for (uint8_t& k : c) k = uint8_t(k * 11 / 20);
         }
       }
       for (int y = 0; y < scale; ++y) {

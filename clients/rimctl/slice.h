@@ -46,8 +46,10 @@ struct SliceImage {
 // Colours each cell by its sdf over [-range_m, range_m] (range_m <= 0: the 98th percentile of
 // |sdf| over observed cells, at least 5 cm), draws the zero crossing (outside cells with an
 // observed inside neighbour) dark and never-observed cells mid grey, and scales the picture up
-// by a whole factor until its longer side is at least min_side_px pixels.
+// by a whole factor until its longer side is at least min_side_px pixels. With contour_m > 0,
+// also draws contour lines every contour_m metres of distance: a cell whose neighbour lies in a
+// lower band, darkened (one cell wide, on the far side of each line).
 SliceImage RenderSlice(const SliceGrid& grid, const QueryResult& result, double range_m,
-                       int min_side_px = 256);
+                       int min_side_px = 256, double contour_m = 0);
 
 }  // namespace rim::rimctl

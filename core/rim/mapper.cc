@@ -3,13 +3,16 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <mutex>
 #include <thread>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/status_macros.h"
+#include "rim/eval/parallel_for.h"
 #include "rim/map/deferred_points.h"
+#include "rim/map/distance_field.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
 #include "rim/map/submap_store.h"
@@ -46,6 +49,8 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   deferred_ = std::make_unique<DeferredPoints>(*geometry_, config.grid, config.deferred);
   trainer_ = std::make_unique<Trainer>(config, local_map_.get(), decoder_.get());
   outside_ = std::make_unique<OutsideRaysHolder>();
+  distance_ = std::make_unique<DistanceField>(
+      *geometry_, float(config.query.surfel_radius_voxels * geometry_->leaf_m()));
 }
 
 Mapper::~Mapper() = default;
@@ -190,9 +195,12 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     std::unique_lock<std::shared_mutex> lock(mu_);
     ++frames_;
     BumpVersions(train_decoder && n_iter > 0);
+    if (train_decoder && n_iter > 0) distance_all_stale_ = true;
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
+  if (distance_frames_ < 0 || frames_ - distance_frames_ >= config_.query.refresh_frames)
+    t.distance_s = RefreshDistanceField();
   t.sample_s = it.sample_s;
   t.encode_s = it.encode_s;
   t.forward_s = it.forward_s;
@@ -217,66 +225,255 @@ void Mapper::BumpVersions(bool decoder_changed) {
       for (int z = lo.z(); z <= hi.z(); ++z) store_->SetVersion(Int3(x, y, z), v);
 }
 
-absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
-                              QueryResult* out) const {
+namespace {
+absl::Status CheckQueryPoints(const float* xyz, size_t n) {
   for (size_t i = 0; i < 3 * n; ++i)
     if (!std::isfinite(xyz[i]) || std::abs(xyz[i]) > 1e6f)
       return absl::InvalidArgumentError(
           absl::StrCat("points[", i / 3, "] is not finite or beyond 1e6 m"));
+  return absl::OkStatus();
+}
+
+uint8_t ObservedCode(uint8_t bits) {
+  return ((bits & LocalMap::kObserved) ? QueryResult::kObservedSurface : 0) |
+         ((bits & LocalMap::kSeenFree) ? QueryResult::kObservedFree : 0);
+}
+
+// Chunks of points, so that scratch buffers stay small whatever the batch, spread over up to
+// `threads` threads for large batches. Every point's answer depends on that point alone, so the
+// split does not change any value.
+constexpr size_t kQueryChunk = 4096;
+void ForChunks(size_t n, int threads, const std::function<void(size_t, size_t)>& fn) {
+  eval::ParallelFor(int64_t(n), int64_t(kQueryChunk), std::max(threads, 1),
+                    [&](int64_t b, int64_t e) { fn(size_t(b), size_t(e - b)); });
+}
+}  // namespace
+
+void Mapper::EvalNeural(const float* xyz, size_t n, float* sdf, float* grad,
+                        uint8_t* observed) const {
+  const int F = geometry_->encoding_dim();
+  const double inv_s = 1.0 / geometry_->leaf_m();
+  FeatureReader reader(*local_map_, *store_);
+  const size_t chunk = std::min(n, kQueryChunk);
+  std::vector<float> features(chunk * F), jac(grad ? chunk * F * 3 : 0), dsdf(grad ? chunk * F : 0);
+  for (size_t begin = 0; begin < n; begin += kQueryChunk) {
+    const size_t m = std::min(kQueryChunk, n - begin);
+    constexpr size_t kAhead = 4;  // points whose rows are on their way while one is blended
+    for (size_t i = 0; i < m; ++i) {
+      if (i + kAhead < m) {
+        const float* ahead = xyz + 3 * (begin + i + kAhead);
+        reader.Prefetch(Vec3d(ahead[0], ahead[1], ahead[2]));
+      }
+      const float* q = xyz + 3 * (begin + i);
+      const Vec3d p(q[0], q[1], q[2]);
+      reader.Encode(p, &features[i * F], grad ? &jac[i * F * 3] : nullptr);
+      if (observed) {
+        const Int3 g0(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
+                      int(std::floor(p.z() * inv_s)));
+        observed[begin + i] = ObservedCode(reader.ObservedBits(g0));
+      }
+    }
+    decoder_->Forward(features.data(), int(m), sdf + begin, grad ? dsdf.data() : nullptr);
+    if (!grad) continue;
+    // Chain rule: d sdf / d p = (d sdf / d features) · (d features / d p).
+    for (size_t i = 0; i < m; ++i) {
+      float* g = grad + 3 * (begin + i);
+      g[0] = g[1] = g[2] = 0.f;
+      for (int f = 0; f < F; ++f)
+        for (int a = 0; a < 3; ++a) g[a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
+    }
+  }
+}
+
+absl::Status Mapper::QueryNeural(const float* xyz, size_t n, bool want_gradient,
+                                 QueryResult* out) const {
+  RIM_RETURN_IF_ERROR(CheckQueryPoints(xyz, n));
   std::shared_lock<std::shared_mutex> lock(mu_);
   // Under the lock, or a slide in between could leave slabs on their way to the store, in
   // neither the local map nor the store, and read as unobserved zeros.
   saver_->Flush();
-  const int F = geometry_->encoding_dim();
   out->sdf.resize(n);
   out->observed.resize(n);
   out->gradient.assign(want_gradient ? 3 * n : 0, 0.f);
-  // Chunks of points, so that the scratch buffers stay small whatever the batch, spread over up
-  // to train.threads threads for large batches. Every point's answer depends on that point
-  // alone (the plain decoder is batch-independent), so the split does not change any value.
-  constexpr size_t kChunk = 4096;
-  const size_t chunks = (n + kChunk - 1) / kChunk;
-  const double inv_s = 1.0 / geometry_->leaf_m();
-  auto run = [&](size_t first, size_t stride) {
-    FeatureReader reader(*local_map_, *store_);
-    std::vector<float> features(kChunk * F), jac(want_gradient ? kChunk * F * 3 : 0),
-        dsdf(want_gradient ? kChunk * F : 0);
-    for (size_t c = first; c < chunks; c += stride) {
-      const size_t begin = c * kChunk, m = std::min(kChunk, n - begin);
-      constexpr size_t kAhead = 4;  // points whose rows are on their way while one is blended
-      for (size_t i = 0; i < m; ++i) {
-        if (i + kAhead < m) {
-          const float* ahead = xyz + 3 * (begin + i + kAhead);
-          reader.Prefetch(Vec3d(ahead[0], ahead[1], ahead[2]));
-        }
-        const float* q = xyz + 3 * (begin + i);
-        const Vec3d p(q[0], q[1], q[2]);
-        reader.Encode(p, &features[i * F], want_gradient ? &jac[i * F * 3] : nullptr);
-        const Int3 g0(int(std::floor(p.x() * inv_s)), int(std::floor(p.y() * inv_s)),
-                      int(std::floor(p.z() * inv_s)));
-        const uint8_t bits = reader.ObservedBits(g0);
-        out->observed[begin + i] =
-            ((bits & LocalMap::kObserved) ? QueryResult::kObservedSurface : 0) |
-            ((bits & LocalMap::kSeenFree) ? QueryResult::kObservedFree : 0);
-      }
-      decoder_->Forward(features.data(), int(m), &out->sdf[begin],
-                        want_gradient ? dsdf.data() : nullptr);
-      if (!want_gradient) continue;
-      // Chain rule: d sdf / d p = (d sdf / d features) · (d features / d p).
-      for (size_t i = 0; i < m; ++i) {
-        float* grad = &out->gradient[3 * (begin + i)];
-        for (int f = 0; f < F; ++f)
-          for (int a = 0; a < 3; ++a) grad[a] += dsdf[i * F + f] * jac[(i * F + f) * 3 + a];
-      }
-    }
-  };
-  const size_t threads = std::min<size_t>(size_t(config_.train.threads), chunks);
-  std::vector<std::thread> helpers;
-  for (size_t t = 1; t < threads; ++t) helpers.emplace_back(run, t, threads);
-  run(0, std::max<size_t>(threads, 1));
-  for (std::thread& t : helpers) t.join();
+  out->saturated.clear();
+  ForChunks(n, config_.train.threads, [&](size_t begin, size_t m) {
+    EvalNeural(xyz + 3 * begin, m, &out->sdf[begin],
+               want_gradient ? &out->gradient[3 * begin] : nullptr, &out->observed[begin]);
+  });
   out->map_version = map_version_.load();
   return absl::OkStatus();
+}
+
+absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
+                              QueryResult* out) const {
+  RIM_RETURN_IF_ERROR(CheckQueryPoints(xyz, n));
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  saver_->Flush();  // under the lock, as in QueryNeural
+  out->sdf.resize(n);
+  out->observed.resize(n);
+  out->saturated.resize(n);
+  out->gradient.assign(want_gradient ? 3 * n : 0, 0.f);
+  const double inv_s = 1.0 / geometry_->leaf_m();
+  ForChunks(n, config_.train.threads, [&](size_t begin, size_t m) {
+    FeatureReader reader(*local_map_, *store_);
+    for (size_t i = begin; i < begin + m; ++i) {
+      const float* q = xyz + 3 * i;
+      const Int3 g0(int(std::floor(q[0] * inv_s)), int(std::floor(q[1] * inv_s)),
+                    int(std::floor(q[2] * inv_s)));
+      out->observed[i] = ObservedCode(reader.ObservedBits(g0));
+    }
+    distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
+                     want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin]);
+    // The sign. The side of the nearest disk's plane is wrong past a convex edge (the disk's
+    // plane runs on beyond it) and before a stray surfel. A voxel that rays crossed, away from
+    // any surface band, is free space; inside a surface band the network, trained there, knows
+    // the side; elsewhere (never observed) the disk decides.
+    std::vector<size_t> band;
+    std::vector<float> band_xyz;
+    for (size_t i = begin; i < begin + m; ++i) {
+      if (out->observed[i] & QueryResult::kObservedSurface) {
+        band.push_back(i);
+        band_xyz.insert(band_xyz.end(), xyz + 3 * i, xyz + 3 * i + 3);
+      }
+    }
+    std::vector<float> band_sdf(band.size());
+    if (!band.empty()) EvalNeural(band_xyz.data(), band.size(), band_sdf.data(), nullptr, nullptr);
+    auto flip = [&](size_t i) {
+      out->sdf[i] = -out->sdf[i];
+      if (want_gradient)
+        for (int a = 0; a < 3; ++a) out->gradient[3 * i + a] = -out->gradient[3 * i + a];
+    };
+    for (size_t k = 0; k < band.size(); ++k)
+      if ((band_sdf[k] < 0) != (out->sdf[band[k]] < 0)) flip(band[k]);
+    for (size_t i = begin; i < begin + m; ++i)
+      if (out->observed[i] == QueryResult::kObservedFree && out->sdf[i] < 0) flip(i);
+  });
+  out->map_version = map_version_.load();
+  return absl::OkStatus();
+}
+
+std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
+                                           const std::vector<IntBox>& regions) const {
+  const MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
+  std::vector<Int3> voxels = rim::ObservedVoxels(src, key);
+  if (!regions.empty()) {
+    voxels.erase(std::remove_if(voxels.begin(), voxels.end(),
+                                [&](const Int3& g) {
+                                  for (const IntBox& b : regions)
+                                    if (b.Contains(g)) return false;
+                                  return true;
+                                }),
+                 voxels.end());
+  }
+  const double s = geometry_->leaf_m();
+  std::vector<Surfel> out;
+  std::mutex out_mu;
+  // Two Newton steps from each voxel's centre onto the zero level, p ← p − f ∇f / |∇f|², the
+  // second from where the first landed; the voxel keeps the point when it lies in it (with a
+  // hair of slack) and the second step was short.
+  ForChunks(voxels.size(), config_.train.threads, [&](size_t begin, size_t m) {
+    std::vector<float> p(3 * m), f(m), g(3 * m);
+    for (size_t i = 0; i < m; ++i)
+      for (int a = 0; a < 3; ++a) p[3 * i + a] = float((voxels[begin + i][a] + 0.5) * s);
+    std::vector<size_t> live(m);
+    for (size_t i = 0; i < m; ++i) live[i] = i;
+    for (int step = 0; step < 2; ++step) {
+      std::vector<float> q(3 * live.size()), fv(live.size()), gv(3 * live.size());
+      for (size_t k = 0; k < live.size(); ++k)
+        for (int a = 0; a < 3; ++a) q[3 * k + a] = p[3 * live[k] + a];
+      EvalNeural(q.data(), live.size(), fv.data(), gv.data(), nullptr);
+      std::vector<size_t> next;
+      for (size_t k = 0; k < live.size(); ++k) {
+        const size_t i = live[k];
+        const float* gk = &gv[3 * k];
+        const float g2 = gk[0] * gk[0] + gk[1] * gk[1] + gk[2] * gk[2];
+        // The surface cannot cross a voxel whose centre is farther than its half diagonal.
+        // The Newton step's length |f| / |∇f| (the field's slope is not 1: along-ray labels
+        // steepen it where rays graze a surface): a surface farther than the voxel's half
+        // diagonal from its centre does not cross it.
+        const float step_m = std::abs(fv[k]) / std::sqrt(std::max(g2, 1e-12f));
+        if (!(g2 > 0.01f) || step_m > (step == 0 ? 0.9 : 0.5) * s) continue;
+        f[i] = fv[k];
+        for (int a = 0; a < 3; ++a) {
+          g[3 * i + a] = gk[a];
+          p[3 * i + a] -= fv[k] * gk[a] / g2;
+        }
+        next.push_back(i);
+      }
+      live.swap(next);
+    }
+    std::vector<Surfel> mine;
+    for (size_t i : live) {
+      const Int3& v = voxels[begin + i];
+      bool inside = true;
+      for (int a = 0; a < 3; ++a)
+        inside = inside && p[3 * i + a] >= (v[a] - 0.05) * s && p[3 * i + a] <= (v[a] + 1.05) * s;
+      if (!inside) continue;
+      Surfel sf;
+      const float* gi = &g[3 * i];
+      const float norm = std::sqrt(gi[0] * gi[0] + gi[1] * gi[1] + gi[2] * gi[2]);
+      for (int a = 0; a < 3; ++a) {
+        sf.p[a] = p[3 * i + a];
+        sf.n[a] = gi[a] / norm;
+      }
+      sf.voxel = distance_->VoxelIndex(key, v);
+      mine.push_back(sf);
+    }
+    std::lock_guard<std::mutex> lock(out_mu);
+    out.insert(out.end(), mine.begin(), mine.end());
+  });
+  return out;
+}
+
+bool Mapper::DistanceFieldBehind() const {
+  std::lock_guard<std::mutex> refresh(refresh_mu_);
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  return distance_frames_ != frames_;
+}
+
+double Mapper::RefreshDistanceField() {
+  const double start = Now();
+  std::lock_guard<std::mutex> refresh(refresh_mu_);
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  saver_->Flush();
+  distance_frames_ = frames_;
+  std::vector<Int3> keys;
+  std::vector<IntBox> regions;
+  std::unique_ptr<IntBox> box;
+  if (local_map_->placed()) {
+    // Voxels just outside the box read coarse rows on its faces, which still train.
+    const IntBox b = local_map_->LatticeBox(0);
+    const Int3 widen = Int3::Constant(geometry_->scale_to_coarse(0));
+    box = std::make_unique<IntBox>(IntBox{b.lo - widen, b.hi + widen});
+  }
+  if (distance_all_stale_) {
+    // Every sub-map the store knows, and those the box covers.
+    for (const auto& [key, version] : store_->Versions()) keys.push_back(key);
+    distance_all_stale_ = false;
+  } else if (box) {
+    regions.push_back(*box);
+    if (distance_box_ && !(distance_box_->lo == box->lo && distance_box_->hi == box->hi))
+      regions.push_back(*distance_box_);
+  }
+  for (const IntBox& r : box ? std::vector<IntBox>{*box} : std::vector<IntBox>{}) {
+    const Int3 lo = geometry_->SubmapOfLattice(0, r.lo), hi = geometry_->SubmapOfLattice(0, r.hi);
+    for (int x = lo.x(); x <= hi.x(); ++x)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int z = lo.z(); z <= hi.z(); ++z) keys.push_back(Int3(x, y, z));
+  }
+  for (const IntBox& r : regions) {
+    const Int3 lo = geometry_->SubmapOfLattice(0, r.lo), hi = geometry_->SubmapOfLattice(0, r.hi);
+    for (int x = lo.x(); x <= hi.x(); ++x)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int z = lo.z(); z <= hi.z(); ++z) keys.push_back(Int3(x, y, z));
+  }
+  std::sort(keys.begin(), keys.end(), [](const Int3& a, const Int3& b) {
+    return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+  });
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  for (const Int3& key : keys) distance_->Replace(key, regions, ExtractSurfels(key, regions));
+  if (box) distance_box_ = std::move(box);
+  return Now() - start;
 }
 
 std::vector<TileInfo> Mapper::ListTiles(uint64_t since_version) const {
@@ -315,6 +512,9 @@ MapperStats Mapper::Stats() const {
   s.deferred_points = deferred.points;
   s.deferred_bytes = deferred.bytes;
   s.local_map_bytes = local_map_->MemoryBytes();
+  const DistanceFieldStats distance = distance_->Stats();
+  s.distance_surfels = distance.surfels;
+  s.distance_bytes = distance.bytes;
   const SubmapStoreStats st = store_->Stats();
   s.submap_bytes = st.host_bytes;
   s.submaps_active = st.active;

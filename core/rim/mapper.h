@@ -23,6 +23,9 @@ namespace rim {
 
 class Decoder;
 class DeferredPoints;
+class DistanceField;
+struct IntBox;
+struct Surfel;
 class LocalMap;
 class PointBuffer;
 class SlabSaver;
@@ -34,6 +37,7 @@ class MapGeometry;
 struct StageTimings {
   double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0,
          step_s = 0, total_s = 0;
+  double distance_s = 0;  // distance field refresh (every query.refresh_frames frames)
   int iterations = 0;
   float loss = 0;  // mean over the frame's iterations
 
@@ -47,14 +51,22 @@ struct StageTimings {
     backward_s += o.backward_s;
     step_s += o.step_s;
     total_s += o.total_s;
+    distance_s += o.distance_s;
     iterations += o.iterations;
     return *this;
   }
 };
 
 struct QueryResult {
-  std::vector<float> sdf;       // metres; see `observed`
-  std::vector<float> gradient;  // 3 per point, when asked
+  // Metres. QuerySdf: the signed Euclidean distance to the nearest mapped surface (positive in
+  // free space), bounded by query.max_distance_m; QueryNeural: the network's value.
+  std::vector<float> sdf;
+  // 3 per point, when asked. QuerySdf: unit length, away from the nearest surface (zero when
+  // saturated); QueryNeural: the network's analytic gradient.
+  std::vector<float> gradient;
+  // QuerySdf only, per point: 1 when no mapped surface lies within query.max_distance_m (sdf is
+  // then +max_distance_m: "at least this far").
+  std::vector<uint8_t> saturated;
   // Per point, how the finest voxel at the point was observed: 0 never (the sdf is the network's
   // extrapolation), else kObservedSurface (training samples near a surface fell in it, what the
   // mesh covers) and/or kObservedFree (a ray crossed it in front of its endpoint). The service
@@ -77,6 +89,8 @@ struct MapperStats {
   int64_t deferred_points = 0;  // rays seen outside the box, waiting for it (deferred_points.h)
   int64_t deferred_bytes = 0;
   int64_t local_map_bytes = 0;
+  int64_t distance_surfels = 0;  // the metric distance field (map/distance_field.h)
+  int64_t distance_bytes = 0;
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
   bool decoder_frozen = false;
@@ -107,8 +121,21 @@ class Mapper {
   absl::Status IntegrateScan(const PosedScan& scan, int iterations = -1,
                              StageTimings* timing = nullptr);
 
-  // SDF (and analytic gradient) at n points xyz (world frame), anywhere in the mapped world.
+  // Signed Euclidean distance to the nearest mapped surface (and its gradient) at n points xyz
+  // (world frame), anywhere in the mapped world: the metric distance field (distance_field.h),
+  // as of its last refresh.
   absl::Status QuerySdf(const float* xyz, size_t n, bool want_gradient, QueryResult* out) const;
+  // The network's own value and analytic gradient at the points (what meshing and training see;
+  // along-ray, not Euclidean, away from the surface).
+  absl::Status QueryNeural(const float* xyz, size_t n, bool want_gradient, QueryResult* out) const;
+
+  // Brings the distance field up to the map: re-extracts the surfels of the box (widened by the
+  // coarse voxel whose rows it shares) and of what the box left since the last refresh, or of
+  // the whole map while the decoder trains. IntegrateScan calls it every query.refresh_frames
+  // frames; a caller with idle time may call it in between. Returns seconds spent.
+  double RefreshDistanceField();
+  // Whether frames were integrated since the last refresh.
+  bool DistanceFieldBehind() const;
 
   // Tiles (one per sub-map) whose version is newer than `since_version`.
   std::vector<TileInfo> ListTiles(uint64_t since_version) const;
@@ -132,6 +159,7 @@ class Mapper {
   const SubmapStore& store() const { return *store_; }
   const Decoder& decoder() const { return *decoder_; }
   const DeferredPoints& deferred() const { return *deferred_; }
+  const DistanceField& distance_field() const { return *distance_; }
 
  private:
   explicit Mapper(const MapperConfig& config);
@@ -142,6 +170,12 @@ class Mapper {
   absl::Status SaveState(const std::string& path) const;
   absl::Status LoadState(const std::string& path, uint32_t* version);
   absl::Status SaveDeferred(const std::string& path) const;
+  absl::Status SaveDistance(const std::string& path) const;
+  absl::Status LoadDistance(const std::string& path);
+  // Network values (and gradients, 3 per point, when `grad`) at n points; caller holds mu_.
+  void EvalNeural(const float* xyz, size_t n, float* sdf, float* grad, uint8_t* observed) const;
+  // Surfels of sub-map `key` in `regions` (all of it when empty); caller holds mu_ shared.
+  std::vector<Surfel> ExtractSurfels(const Int3& key, const std::vector<IntBox>& regions) const;
   absl::Status LoadDeferred(const std::string& path);
 
   MapperConfig config_;
@@ -153,6 +187,13 @@ class Mapper {
   std::unique_ptr<PointBuffer> buffer_;
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
+  std::unique_ptr<DistanceField> distance_;
+  // Refresh state (training thread only): the widened box of the last refresh, the frame count
+  // then, and whether the decoder changed since (which moves every surfel).
+  std::unique_ptr<IntBox> distance_box_;
+  mutable std::mutex refresh_mu_;  // one refresh (or save) at a time
+  int64_t distance_frames_ = -1;
+  bool distance_all_stale_ = true;
   struct OutsideRaysHolder;
   std::unique_ptr<OutsideRaysHolder> outside_;
 

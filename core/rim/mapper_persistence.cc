@@ -15,6 +15,7 @@
 #include "rim/base/binary_io.h"
 #include "rim/base/status_macros.h"
 #include "rim/map/deferred_points.h"
+#include "rim/map/distance_field.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
 #include "rim/map/submap_store.h"
@@ -28,7 +29,7 @@ namespace {
 
 // Version 2 added deferred.rimf (the deferred rays); a version 1 checkpoint has none and loads
 // with an empty store.
-constexpr uint32_t kStateVersion = 2;
+constexpr uint32_t kStateVersion = 3;
 namespace fs = std::filesystem;
 
 // Sequence number of a checkpoint folder name, or -1.
@@ -149,6 +150,45 @@ absl::Status Mapper::LoadDeferred(const std::string& path) {
                                  : absl::StrCat(path, ": ", s.message()));
 }
 
+absl::Status Mapper::SaveDistance(const std::string& path) const {
+  ByteWriter w;
+  w.U64(uint64_t(distance_frames_ + 1));
+  w.U8(distance_all_stale_ ? 1 : 0);
+  w.U8(distance_box_ ? 1 : 0);
+  if (distance_box_)
+    for (const Int3* v : {&distance_box_->lo, &distance_box_->hi})
+      for (int a = 0; a < 3; ++a) w.I32((*v)[a]);
+  distance_->Serialize(&w);
+  return WriteFileAtomic(path, "DIST", w.data());
+}
+
+absl::Status Mapper::LoadDistance(const std::string& path) {
+  RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(path, "DIST"));
+  ByteReader r(bytes, path);
+  uint64_t frames_plus_one;
+  uint8_t stale, has_box;
+  IntBox box;
+  absl::Status s = r.U64(&frames_plus_one);
+  if (s.ok()) s = r.U8(&stale);
+  if (s.ok()) s = r.U8(&has_box);
+  for (Int3* v : {&box.lo, &box.hi})
+    for (int a = 0; a < 3 && s.ok() && has_box; ++a) s = r.I32(&(*v)[a]);
+  if (s.ok() && (stale > 1 || has_box > 1 || frames_plus_one > uint64_t(frames_) + 1))
+    s = absl::DataLossError("bad refresh state");
+  if (s.ok()) s = distance_->Deserialize(&r);
+  if (s.ok()) s = r.ExpectEnd();
+  if (!s.ok()) {
+    distance_->Clear();
+    return absl::DataLossError(absl::StartsWith(s.message(), path)
+                                   ? std::string(s.message())
+                                   : absl::StrCat(path, ": ", s.message()));
+  }
+  distance_frames_ = int64_t(frames_plus_one) - 1;
+  distance_all_stale_ = stale != 0;
+  distance_box_ = has_box ? std::make_unique<IntBox>(box) : nullptr;
+  return absl::OkStatus();
+}
+
 absl::Status Mapper::LoadState(const std::string& path, uint32_t* version_out) {
   RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(path, "STAT"));
   ByteReader r(bytes, path);
@@ -185,6 +225,8 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   // pointed CURRENT at it.
   std::lock_guard<std::mutex> save_lock(save_mu_);
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  // Before mu_, as RefreshDistanceField takes them: the refresh state is saved as it stands.
+  std::lock_guard<std::mutex> refresh_lock(refresh_mu_);
   std::shared_lock<std::shared_mutex> lock(mu_);
   // Under the lock: the trainer may have slid the local map since any earlier flush, and slabs
   // still on their way to the store would be in neither the local map nor the checkpoint. The
@@ -201,6 +243,7 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   RIM_RETURN_IF_ERROR(WriteFileAtomic(ckpt + "/config.rimf", "CONF", config_.ToString()));
   RIM_RETURN_IF_ERROR(SaveState(ckpt + "/state.rimf"));
   RIM_RETURN_IF_ERROR(SaveDeferred(ckpt + "/deferred.rimf"));
+  RIM_RETURN_IF_ERROR(SaveDistance(ckpt + "/distance.rimf"));
   RIM_RETURN_IF_ERROR(store_->SaveTo(ckpt + "/submaps"));
   RIM_RETURN_IF_ERROR(WriteFileAtomic(dir + "/CURRENT", "CURR", name));
   for (const auto& e : fs::directory_iterator(dir, ec)) {
@@ -229,6 +272,11 @@ absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Load(const std::string& dir,
   RIM_RETURN_IF_ERROR(mapper->LoadState(ckpt + "/state.rimf", &state_version));
   if (state_version >= 2) RIM_RETURN_IF_ERROR(mapper->LoadDeferred(ckpt + "/deferred.rimf"));
   RIM_RETURN_IF_ERROR(mapper->store_->LoadFrom(ckpt + "/submaps"));
+  // Older checkpoints have no distance field: it is extracted from the map they restore.
+  if (state_version >= 3)
+    RIM_RETURN_IF_ERROR(mapper->LoadDistance(ckpt + "/distance.rimf"));
+  else
+    mapper->RefreshDistanceField();
   return mapper;
 }
 

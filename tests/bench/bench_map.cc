@@ -37,17 +37,21 @@ const std::vector<float>& QueryPoints() {
   return *points;
 }
 
-// Args: batch size, gradient (0/1).
+// Args: batch size, gradient (0/1), field (0: the metric distances of QuerySdf, 1: the
+// network's own values, QueryNeural).
 void BM_Query(benchmark::State& state) {
   const Mapper& mapper = TrainedMapper();
   const size_t n = size_t(state.range(0));
   const bool gradient = state.range(1) != 0;
+  const bool neural = state.range(2) != 0;
   const std::vector<float>& xyz = QueryPoints();
   QueryResult result;
   WallClock clock;
   for (auto _ : state) {
     clock.Start();
-    CheckOk(mapper.QuerySdf(xyz.data(), n, gradient, &result), "QuerySdf");
+    CheckOk(neural ? mapper.QueryNeural(xyz.data(), n, gradient, &result)
+                   : mapper.QuerySdf(xyz.data(), n, gradient, &result),
+            "QuerySdf");
     benchmark::DoNotOptimize(result.sdf.data());
     clock.Stop();
   }
@@ -172,13 +176,15 @@ void BM_LoadSession(benchmark::State& state) {
 }  // namespace
 
 void RegisterMapBenchmarks() {
-  for (int gradient : {0, 1}) {
-    for (int64_t n : {1000, 100000, 1000000}) {
-      benchmark::RegisterBenchmark("Query", BM_Query)
-          ->ArgNames({"points", "gradient"})
-          ->Args({n, gradient})
-          ->Unit(benchmark::kMillisecond)
-          ->UseRealTime();
+  for (int neural : {0, 1}) {
+    for (int gradient : {0, 1}) {
+      for (int64_t n : {1000, 100000, 1000000}) {
+        benchmark::RegisterBenchmark(neural ? "QueryNeural" : "Query", BM_Query)
+            ->ArgNames({"points", "gradient", "neural"})
+            ->Args({n, gradient, neural})
+            ->Unit(benchmark::kMillisecond)
+            ->UseRealTime();
+      }
     }
   }
   for (auto [name, fn] :

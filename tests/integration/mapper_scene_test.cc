@@ -136,6 +136,76 @@ TEST_F(MapperSceneTest, SignIsRightInFreeSpace) {
   EXPECT_GT(double(observed) / below, 0.98);
 }
 
+// Free-space points the sensor saw, scored against the scene's exact Euclidean distance: what a
+// planner reads must be a distance, not the network's along-ray value (docs/core.md, "Metric
+// distances"). The network's own values at the same points are printed for contrast.
+TEST_F(MapperSceneTest, DistancesAreEuclideanWithUnitGradients) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> ux(3.f, 28.f), uy(-8.f, 8.f), uz(-0.3f, 3.f);
+  std::vector<float> xyz, truth;
+  while (truth.size() < 6000) {
+    const Eigen::Vector3f p(ux(rng), uy(rng), uz(rng));
+    const float d = scene_->Sdf(p);
+    if (d < 0.02f || d >= 2.f) continue;
+    xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
+    truth.push_back(d);
+  }
+  const size_t n = truth.size();
+  QueryResult q, net;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), n, true, &q).ok());
+  ASSERT_TRUE(mapper_->QueryNeural(xyz.data(), n, false, &net).ok());
+  ASSERT_EQ(q.saturated.size(), n);
+  std::vector<double> near_err, far_err, near_net, far_net;
+  size_t scored = 0, too_far = 0, wrong_sign = 0, grad_n = 0, grad_ok = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (q.observed[i] != QueryResult::kObservedFree) continue;  // seen free, off surface bands
+    ++scored;
+    const Eigen::Vector3f p(&xyz[3 * i]);
+    const double e = double(q.sdf[i]) - truth[i];
+    (truth[i] < 0.3f ? near_err : far_err).push_back(std::abs(e));
+    (truth[i] < 0.3f ? near_net : far_net).push_back(std::abs(double(net.sdf[i]) - truth[i]));
+    too_far += e > 0.1;
+    wrong_sign += q.sdf[i] < 0;
+    if (truth[i] < 0.1f) continue;
+    Eigen::Vector3f fd;
+    for (int a = 0; a < 3; ++a) {
+      Eigen::Vector3f h = Eigen::Vector3f::Zero();
+      h[a] = 1e-3f;
+      fd[a] = (scene_->Sdf(p + h) - scene_->Sdf(p - h)) / 2e-3f;
+    }
+    const Eigen::Vector3f g(&q.gradient[3 * i]);
+    EXPECT_NEAR(g.norm(), 1.f, 1e-3f);
+    ++grad_n;
+    grad_ok += g.dot(fd.normalized()) > std::cos(10.f * M_PI / 180.f);
+  }
+  std::printf(
+      "metric distances at %zu seen-free points: median |error| %.2f cm within 0.3 m "
+      "(network %.1f cm), %.2f cm at 0.3-2 m (network %.1f cm); %.2f%% > 10 cm too far, %.2f%% "
+      "wrong sign, gradients within 10 deg %.1f%%\n",
+      scored, 100 * Median(near_err), 100 * Median(near_net), 100 * Median(far_err),
+      100 * Median(far_net), 100.0 * too_far / scored, 100.0 * wrong_sign / scored,
+      100.0 * grad_ok / grad_n);
+  ASSERT_GT(scored, 2000u);
+  EXPECT_LT(Median(near_err), 0.02);
+  EXPECT_LT(Median(far_err), 0.04);
+  EXPECT_LT(double(too_far) / scored, 0.01);
+  EXPECT_LT(double(wrong_sign) / scored, 0.01);
+  EXPECT_GT(double(grad_ok) / grad_n, 0.9);
+}
+
+TEST_F(MapperSceneTest, FarFromEverySurfaceTheBoundIsFlagged) {
+  // 5 m above the ground in the middle of the drive, and far away where nothing was mapped.
+  std::vector<float> xyz = {15.f, 0.f, 5.f, 500.f, 0.f, 1.f};
+  QueryResult q;
+  ASSERT_TRUE(mapper_->QuerySdf(xyz.data(), 2, true, &q).ok());
+  const float bound = mapper_->config().query.max_distance_m;
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(q.saturated[i], 1);
+    EXPECT_EQ(q.sdf[i], bound);
+    EXPECT_EQ(q.gradient[3 * i + 2], 0.f);
+  }
+}
+
 TEST_F(MapperSceneTest, UnseenSpaceIsNotObserved) {
   // Deep under the ground (behind every surface) and far to the side of the drive, beyond the
   // sensor's reach: no ray saw these, whatever the network extrapolates there.
@@ -300,6 +370,7 @@ TEST_F(MapperSceneTest, SaveLoadGivesIdenticalAnswers) {
   EXPECT_EQ(a.sdf, b.sdf);
   EXPECT_EQ(a.gradient, b.gradient);
   EXPECT_EQ(a.observed, b.observed);
+  EXPECT_EQ(a.saturated, b.saturated);
   EXPECT_EQ(a.map_version, b.map_version);
   EXPECT_EQ((*loaded)->frames(), mapper_->frames());
 }

@@ -295,6 +295,7 @@ TEST_F(ServerE2eTest, QuerySdfAtSurface) {
   ASSERT_EQ(response.sdf().size(), points.size() * 4);
   ASSERT_EQ(response.gradient().size(), points.size() * 12);
   ASSERT_EQ(response.observed().size(), points.size());
+  ASSERT_EQ(response.saturated().size(), points.size());
   int observed = 0, close = 0;
   for (size_t i = 0; i < points.size(); ++i) {
     if (response.observed()[i] == 0) continue;

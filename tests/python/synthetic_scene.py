@@ -15,14 +15,17 @@ BOX_MAX = np.array([1.6, 0.6, 1.2])
 SENSOR_HEIGHT_M = 1.0
 
 
-def sdf(points: np.ndarray) -> np.ndarray:
-    """Exact signed distance of the scene (ground half-space union box) at (N, 3) points."""
-    ground = points[:, 2] - GROUND_Z
+def box_sdf(points: np.ndarray) -> np.ndarray:
+    """Exact signed distance of the box alone at (N, 3) points."""
     centre = (BOX_MIN + BOX_MAX) / 2
     half = (BOX_MAX - BOX_MIN) / 2
     q = np.abs(points - centre) - half
-    box = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
-    return np.minimum(ground, box)
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
+def sdf(points: np.ndarray) -> np.ndarray:
+    """Exact signed distance of the scene (ground half-space union box) at (N, 3) points."""
+    return np.minimum(points[:, 2] - GROUND_Z, box_sdf(points))
 
 
 def yaw_pose(x: float, y: float, z: float, yaw_rad: float) -> np.ndarray:

@@ -166,10 +166,10 @@ TEST(MapperFreezeTest, DecoderFreezesAfterConfiguredFrames) {
   EXPECT_TRUE((*mapper)->Stats().decoder_frozen);
   std::vector<float> xyz = Probe();
   QueryResult before, after;
-  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &before).ok());
+  ASSERT_TRUE((*mapper)->QueryNeural(xyz.data(), xyz.size() / 3, false, &before).ok());
   ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 3)).ok());
   EXPECT_EQ((*mapper)->decoder().params(), p2);  // frozen from frame 3 on
-  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &after).ok());
+  ASSERT_TRUE((*mapper)->QueryNeural(xyz.data(), xyz.size() / 3, false, &after).ok());
   EXPECT_NE(before.sdf, after.sdf);  // ...while the features keep learning
 }
 
@@ -283,6 +283,52 @@ TEST(MapperDeferredTest, SurfacesSeenFromOutsideTheBoxEnterTheMapWhenItArrives) 
   EXPECT_GT(fraction[1], 0.8) << "deferred rays did not reach the map";
 }
 
+TEST(MapperDistanceTest, TheDistanceFieldIsSavedAndACorruptFileIsDataLossNamingIt) {
+  const std::string dir = ::testing::TempDir() + "/rim_mapper_distance_save";
+  std::filesystem::remove_all(dir);
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig({"query.refresh_frames=3"}));
+  ASSERT_TRUE(mapper.ok());
+  for (uint32_t i = 1; i <= 5; ++i)
+    ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, i)).ok());
+  // Refreshed after frames 1 and 4: frame 5 is not in the field yet, and a restored mapper lags
+  // it the same way.
+  EXPECT_TRUE((*mapper)->DistanceFieldBehind());
+  ASSERT_GT((*mapper)->Stats().distance_surfels, 100);
+  ASSERT_TRUE((*mapper)->Save(dir).ok());
+  auto loaded = Mapper::Load(dir);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ((*loaded)->Stats().distance_surfels, (*mapper)->Stats().distance_surfels);
+  const std::vector<float> xyz = Probe();
+  QueryResult a, b;
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*loaded)->QuerySdf(xyz.data(), xyz.size() / 3, true, &b).ok());
+  EXPECT_EQ(a.sdf, b.sdf);
+  EXPECT_EQ(a.gradient, b.gradient);
+  EXPECT_EQ(a.saturated, b.saturated);
+  // Both refresh after frame 7.
+  for (uint32_t i = 6; i <= 7; ++i) {
+    ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, i)).ok());
+    ASSERT_TRUE((*loaded)->IntegrateScan(ScanAt(scene, 0.f, i)).ok());
+  }
+  EXPECT_FALSE((*loaded)->DistanceFieldBehind());
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*loaded)->QuerySdf(xyz.data(), xyz.size() / 3, true, &b).ok());
+  EXPECT_EQ(a.sdf, b.sdf);
+
+  const std::string file = FindFile(dir, "distance.rimf");
+  ASSERT_FALSE(file.empty());
+  FlipByte(file, 200, 0x21);
+  auto corrupt = Mapper::Load(dir);
+  ASSERT_FALSE(corrupt.ok());
+  EXPECT_EQ(corrupt.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(std::string(corrupt.status().message()), HasSubstr("distance.rimf"));
+  std::filesystem::remove(file);
+  auto missing = Mapper::Load(dir);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_THAT(std::string(missing.status().message()), HasSubstr("distance.rimf"));
+}
+
 TEST(MapperDeferredTest, DeferredRaysAreSavedAndACorruptFileIsDataLossNamingIt) {
   const std::string dir = ::testing::TempDir() + "/rim_mapper_deferred_save";
   std::filesystem::remove_all(dir);
@@ -308,6 +354,8 @@ TEST(MapperDeferredTest, DeferredRaysAreSavedAndACorruptFileIsDataLossNamingIt) 
   EXPECT_EQ(a.sdf, b.sdf);
   EXPECT_EQ(a.observed, b.observed);
 
+  EXPECT_EQ(a.saturated, b.saturated);
+
   const std::string file = FindFile(dir, "deferred.rimf");
   ASSERT_FALSE(file.empty());
   FlipByte(file, 60, 0x21);
@@ -330,13 +378,18 @@ TEST(MapperSpillTest, FrozenSubmapsSpillToDiskAndComeBack) {
   ASSERT_TRUE(mapper.ok());
   // The box face is seen from the start; by x = 5 m the robot's map has left it behind for good,
   // so its answers come from the sub-map store and must not change while it spills and reloads.
+  // The network's values and the distance field (refreshed at both moments) alike.
   std::vector<float> xyz = Probe();
-  QueryResult left_behind;
+  QueryResult left_behind, left_behind_net;
   for (float x = 0.f; x <= 12.f; x += 1.f) {
     ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, x, uint32_t(10 + x))).ok());
-    if (x == 5.f)
+    if (x == 5.f) {
+      (*mapper)->RefreshDistanceField();
       ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &left_behind).ok());
+      ASSERT_TRUE((*mapper)->QueryNeural(xyz.data(), xyz.size() / 3, false, &left_behind_net).ok());
+    }
   }
+  (*mapper)->RefreshDistanceField();
   const MapperStats stats = (*mapper)->Stats();
   EXPECT_GT(stats.submaps_on_disk, 0);
   EXPECT_GT(std::distance(std::filesystem::directory_iterator(spill), {}), 0);
@@ -347,6 +400,9 @@ TEST(MapperSpillTest, FrozenSubmapsSpillToDiskAndComeBack) {
   EXPECT_GT(observed, 0u);
   EXPECT_EQ(q.sdf, left_behind.sdf);
   EXPECT_EQ(q.observed, left_behind.observed);
+  EXPECT_EQ(q.saturated, left_behind.saturated);
+  ASSERT_TRUE((*mapper)->QueryNeural(xyz.data(), xyz.size() / 3, false, &q).ok());
+  EXPECT_EQ(q.sdf, left_behind_net.sdf);
   EXPECT_TRUE((*mapper)->store().last_error().ok());
 }
 

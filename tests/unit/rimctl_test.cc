@@ -170,6 +170,30 @@ TEST(RimctlSliceTest, ColoursSurfaceAndUnobservedCells) {
   EXPECT_LT(pixel(0, 1)[0], 40);  // below an inside cell: also on the surface
 }
 
+TEST(RimctlSliceTest, ContourLinesFollowTheDistance) {
+  // A row of 6 cells whose distance grows 0.1 m per cell from 0.07 m: bands of 0.25 m start at
+  // cells 2 (0.27 m) and 5 (0.57 m), so those two carry the lines.
+  auto grid = ParseSliceGrid("0,0,0,5,0.5,0,1");
+  ASSERT_TRUE(grid.ok());
+  ASSERT_EQ(grid->width, 6);
+  QueryResult r;
+  for (int row = 0; row < grid->height; ++row)
+    for (int col = 0; col < 6; ++col) {
+      r.sdf.push_back(0.1f * col + 0.07f);
+      r.observed.push_back(1);
+    }
+  const SliceImage plain = RenderSlice(*grid, r, 1.0, 6, 0.0);
+  const SliceImage lined = RenderSlice(*grid, r, 1.0, 6, 0.25);
+  for (int col = 0; col < 6; ++col) {
+    const bool line = col == 2 || col == 5;
+    const size_t p = size_t(col) * 3;
+    if (line)
+      EXPECT_LT(lined.rgb[p], plain.rgb[p]) << col;
+    else
+      EXPECT_EQ(lined.rgb[p], plain.rgb[p]) << col;
+  }
+}
+
 TEST(RimctlSimTest, CityOptions) {
   auto o = ParseSimCitySpec("sim:city?frames=12&seed=3,columns=900&noise=0.02");
   ASSERT_TRUE(o.ok()) << o.status();

@@ -95,9 +95,14 @@ struct StreamOptions {
 using ScanSource = std::function<absl::StatusOr<bool>(rim::v1::Scan* scan)>;
 
 struct QueryResult {
-  std::vector<float> sdf;         // one per point, metres
-  std::vector<float> gradient;    // three per point when asked for, else empty
+  // One per point, metres: the signed Euclidean distance to the nearest mapped surface, bounded
+  // by the session's query.max_distance_m (see `saturated`).
+  std::vector<float> sdf;
+  std::vector<float> gradient;    // three per point when asked for (unit length), else empty
   std::vector<uint8_t> observed;  // one per point: 1 observed, 0 an extrapolation
+  // One per point: 1 when no surface lies within query.max_distance_m (sdf is then that bound:
+  // "at least this far"). Empty from a server that does not send it.
+  std::vector<uint8_t> saturated;
   // The map version that answered; for a batch answered in chunks, the oldest of their versions
   // (training may move the map between chunks).
   uint64_t map_version = 0;

@@ -21,6 +21,11 @@ absl::Status AppendAnswer(const rim::v1::QuerySdfResponse& answer, size_t count,
                                             answer.observed().size(), " bytes for ", count,
                                             " points"));
   }
+  if (!answer.saturated().empty() && answer.saturated().size() != count) {
+    return absl::DataLossError(absl::StrCat("QuerySdfResponse.saturated has ",
+                                            answer.saturated().size(), " bytes for ", count,
+                                            " points"));
+  }
   std::vector<float> gradient;
   if (want_gradient) {
     auto g = UnpackFloats(answer.gradient(), 3 * count, "QuerySdfResponse.gradient");
@@ -32,6 +37,11 @@ absl::Status AppendAnswer(const rim::v1::QuerySdfResponse& answer, size_t count,
   result->gradient.insert(result->gradient.end(), gradient.begin(), gradient.end());
   result->observed.insert(result->observed.end(), answer.observed().begin(),
                           answer.observed().end());
+  if (answer.saturated().empty())
+    result->saturated.insert(result->saturated.end(), count, 0);
+  else
+    result->saturated.insert(result->saturated.end(), answer.saturated().begin(),
+                             answer.saturated().end());
   result->map_version =
       first ? answer.map_version() : std::min(result->map_version, answer.map_version());
   result->server_seconds += answer.server_seconds();

@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Checks a straight-line path for collision against a robot's rim map.
 
-Samples points every --step metres from --start to --goal, queries their signed distance and
-reports the first sample where a sphere of --radius would touch a surface (sdf < radius) or where
-the map knows nothing (never observed; with --unknown-is-free such samples count as free if their
-extrapolated distance allows it).
+Samples points every --step metres from --start to --goal, queries their signed Euclidean
+distance to the mapped surfaces and reports the first sample where a sphere of --radius would
+touch a surface (sdf < radius) or where the map knows nothing (never observed; with
+--unknown-is-free such samples count as free if their distance to the mapped surfaces allows it).
 
     planner.py --server localhost:50051 --robot robot_1 --start 0,0,0.5 --goal 3,0,0.5 --radius 0.3
 
@@ -56,7 +56,7 @@ def parse_args(argv: Optional[List[str]]) -> argparse.Namespace:
     parser.add_argument("--step", type=positive, default=0.05, help="sample spacing, m")
     parser.add_argument("--unknown-is-free", action="store_true",
                         help="plan optimistically: never-observed space blocks only by its "
-                             "extrapolated distance")
+                             "distance to the mapped surfaces")
     parser.add_argument("--token", help="bearer token for the server")
     parser.add_argument("--timeout", type=positive, default=30.0, help="call deadline, s")
     return parser.parse_args(argv)
@@ -83,16 +83,20 @@ def main(argv: Optional[List[str]] = None) -> int:
     unknown = ~result.observed
     blocked = too_close if args.unknown_is_free else too_close | unknown
     if not blocked.any():
+        nearest = int(np.argmin(result.sdf))
+        # A saturated distance is a lower bound: no surface lies within the session's bound.
+        at_least = (" (at least: no surface nearer)"
+                    if result.saturated is not None and result.saturated[nearest] else "")
         print(f"free: {samples} samples over {length:.3f} m from {fmt(args.start)} to "
-              f"{fmt(args.goal)}, min clearance {float(result.sdf.min()):.3f} m >= radius "
-              f"{args.radius:.3f} m (map version {result.map_version})")
+              f"{fmt(args.goal)}, min clearance {float(result.sdf[nearest]):.3f} m{at_least} >= "
+              f"radius {args.radius:.3f} m (map version {result.map_version})")
         return 0
     i = int(np.argmax(blocked))
     along = float(np.linalg.norm(points[i] - args.start))
     if too_close[i]:
         why = f"sdf {float(result.sdf[i]):.3f} m < radius {args.radius:.3f} m"
         if unknown[i]:
-            why += " (never observed: extrapolated)"
+            why += " (never observed)"
     else:
         why = "never observed: the map knows nothing there"
     print(f"blocked at {fmt(points[i])}, {along:.3f} m from the start (sample {i + 1} of "

@@ -137,8 +137,11 @@ class StreamSummary:
 class QueryResult:
     """Signed distances at a batch of points, in the order they were given.
 
-    Where `observed` is False the map never saw that place and `sdf` is the network's
-    extrapolation: planners should treat it as unknown, not as free.
+    `sdf` is the signed Euclidean distance to the nearest mapped surface (positive in free
+    space), bounded by the session's query.max_distance_m; where `saturated` is True no surface
+    lies that near and the value means "at least this far". `gradient` has unit length and points
+    away from the nearest surface (zero where saturated). Where `observed` is False the map never
+    saw that place: planners should treat it as unknown, not as free.
     """
 
     sdf: np.ndarray  # (N,) float32, metres
@@ -146,6 +149,7 @@ class QueryResult:
     observed: np.ndarray  # (N,) bool
     map_version: int
     server_seconds: float  # summed over the batches the query was split into
+    saturated: Optional[np.ndarray] = None  # (N,) bool
 
 
 @dataclasses.dataclass(frozen=True)

@@ -269,12 +269,17 @@ def _merge(responses: Sequence["rim_pb2.QuerySdfResponse"], n: int,
     grad = None
     if gradient:
         grad = np.frombuffer(b"".join(r.gradient for r in responses), dtype="<f4")
-    if sdf.size != n or observed.size != n or (grad is not None and grad.size != 3 * n):
+    saturated = np.frombuffer(b"".join(r.saturated for r in responses), dtype=np.uint8)
+    if saturated.size == 0:
+        saturated = np.zeros(n, dtype=np.uint8)
+    if (sdf.size != n or observed.size != n or saturated.size != n
+            or (grad is not None and grad.size != 3 * n)):
         raise RimError("DATA_LOSS", f"the server answered {sdf.size} distances and "
                        f"{observed.size} observed flags for {n} points")
     return QueryResult(
         sdf=sdf.astype(np.float32),
         gradient=None if grad is None else grad.reshape(n, 3).astype(np.float32),
         observed=observed != 0,
+        saturated=saturated != 0,
         map_version=max((r.map_version for r in responses), default=0),
         server_seconds=sum(r.server_seconds for r in responses))

@@ -67,6 +67,9 @@ void ForEachField(Config& c, Visitor&& v) {
   v("submap.spill_dir", c.submap.spill_dir);
   v("submap.background_save", c.submap.background_save);
   v("mesh.resolution_m", c.mesh.resolution_m);
+  v("query.max_distance_m", c.query.max_distance_m);
+  v("query.refresh_frames", c.query.refresh_frames);
+  v("query.surfel_radius_voxels", c.query.surfel_radius_voxels);
 }
 
 bool Parse(const std::string& s, std::string* out) {
@@ -191,6 +194,20 @@ absl::Status MapperConfig::Validate() const {
   }
   if (deferred.max_points_per_submap < 8 || deferred.max_points_per_submap > 100000000)
     return Bad("deferred.max_points_per_submap", "must be in [8, 1e8]");
+
+  if (!(query.max_distance_m > 0.f && query.max_distance_m <= 100.f))
+    return Bad("query.max_distance_m", "must be in (0, 100] m");
+  if (query.refresh_frames < 1 || query.refresh_frames > 10000)
+    return Bad("query.refresh_frames", "must be in [1, 10000]");
+  if (!(query.surfel_radius_voxels >= 0.5f && query.surfel_radius_voxels <= 2.f))
+    return Bad("query.surfel_radius_voxels", "must be in [0.5, 2]");
+  {
+    // Surfels name their finest voxel by an index within the sub-map (the local box's size).
+    const double per_submap = std::ceil(2.0 * g.half_extent_x_m / g.leaf_size_m) *
+                              std::ceil(2.0 * g.half_extent_y_m / g.leaf_size_m) *
+                              std::ceil((g.z_max_m - g.z_min_m) / g.leaf_size_m);
+    if (per_submap > 2e9) return Bad("grid.leaf_size_m", "gives more than 2e9 voxels per sub-map");
+  }
 
   if (submap.block_size < 2 || submap.block_size > 64)
     return Bad("submap.block_size", "must be in [2, 64]");

@@ -102,6 +102,14 @@ struct SubmapConfig {
   bool background_save = true;
 };
 
+// Metric distances for queries (map/distance_field.h): the signed Euclidean distance to the
+// nearest mapped surface, from surfels on the field's zero level.
+struct QueryConfig {
+  float max_distance_m = 2.f;         // farther points read this and are flagged saturated
+  int refresh_frames = 10;            // surfels of the box re-extracted every this many frames
+  float surfel_radius_voxels = 0.6f;  // disk radius of a surfel, in finest voxels
+};
+
 struct MeshConfig {
   float resolution_m = 0.05f;  // must divide the leaf size
 };
@@ -116,6 +124,7 @@ struct MapperConfig {
   DeferredConfig deferred;
   SubmapConfig submap;
   MeshConfig mesh;
+  QueryConfig query;
 
   // Checks every value; the error names the bad field (e.g. "grid.leaf_size_m must be > 0").
   absl::Status Validate() const;

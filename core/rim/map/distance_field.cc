@@ -1,0 +1,349 @@
+#include "rim/map/distance_field.h"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <nanoflann.hpp>
+
+#include "absl/container/flat_hash_map.h"
+#include "absl/strings/str_cat.h"
+#include "rim/base/status_macros.h"
+
+namespace rim {
+namespace {
+
+// nanoflann reads surfel positions through this adaptor.
+struct SurfelAdaptor {
+  const std::vector<Surfel>* surfels;
+  size_t kdtree_get_point_count() const { return surfels->size(); }
+  float kdtree_get_pt(size_t i, size_t dim) const { return (*surfels)[i].p[dim]; }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const {
+    return false;
+  }
+};
+
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<
+    nanoflann::L2_Simple_Adaptor<float, SurfelAdaptor, float, uint32_t>, SurfelAdaptor, 3,
+    uint32_t>;
+constexpr size_t kMaxLeaf = 16;
+
+float Dot(const float* a, const float* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+// Distance from q to the disk of radius r in surfel s's tangent plane.
+inline float DiskDistance(const Surfel& s, const float* q, float r) {
+  const float v[3] = {q[0] - s.p[0], q[1] - s.p[1], q[2] - s.p[2]};
+  const float h = Dot(v, s.n);
+  const float t2 = std::max(0.f, Dot(v, v) - h * h);  // squared offset within the plane
+  if (t2 <= r * r) return std::abs(h);
+  const float k = std::sqrt(t2) - r;
+  return std::sqrt(h * h + k * k);
+}
+
+// A nanoflann result set that keeps the nearest disk: a surfel farther than best + r (centre to
+// query) cannot hold a disk point nearer than best, so that bounds the search.
+struct NearestDisk {
+  const Surfel* surfels;
+  const float* q;
+  float r;
+  float best;
+  int64_t index = -1;
+  float worstDist() const {
+    const float w = best + r;
+    return w * w;
+  }
+  bool full() const { return true; }
+  bool addPoint(float, uint32_t i) {
+    const float d = DiskDistance(surfels[i], q, r);
+    if (d < best) {
+      best = d;
+      index = i;
+    }
+    return true;
+  }
+};
+
+// Squared distance from q to an axis-aligned box.
+float BoxDistance2(const float* q, const Vec3f& lo, const Vec3f& hi) {
+  float d2 = 0;
+  for (int a = 0; a < 3; ++a) {
+    const float e = std::max({lo[a] - q[a], 0.f, q[a] - hi[a]});
+    d2 += e * e;
+  }
+  return d2;
+}
+
+}  // namespace
+
+struct DistanceField::Part {
+  explicit Part(std::vector<Surfel> s)
+      : surfels(std::move(s)),
+        adaptor{&surfels},
+        tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(kMaxLeaf)) {
+    lo.setConstant(std::numeric_limits<float>::max());
+    hi.setConstant(std::numeric_limits<float>::lowest());
+    for (const Surfel& x : surfels)
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], x.p[a]);
+        hi[a] = std::max(hi[a], x.p[a]);
+      }
+  }
+  std::vector<Surfel> surfels;
+  SurfelAdaptor adaptor;
+  Tree tree;
+  Vec3f lo, hi;  // bounds of the surfel centres
+};
+
+DistanceField::DistanceField(const MapGeometry& geometry, float surfel_radius_m)
+    : geometry_(geometry), radius_(surfel_radius_m) {}
+
+DistanceField::~DistanceField() = default;
+
+uint32_t DistanceField::VoxelIndex(const Int3& key, const Int3& g) const {
+  const Int3 c = geometry_.cells(0);
+  const Int3 l = g - key.cwiseProduct(c);
+  return (uint32_t(l.x()) * uint32_t(c.y()) + uint32_t(l.y())) * uint32_t(c.z()) + uint32_t(l.z());
+}
+
+Int3 DistanceField::VoxelOf(const Int3& key, uint32_t index) const {
+  const Int3 c = geometry_.cells(0);
+  const int z = int(index % uint32_t(c.z()));
+  index /= uint32_t(c.z());
+  const int y = int(index % uint32_t(c.y()));
+  const int x = int(index / uint32_t(c.y()));
+  return key.cwiseProduct(c) + Int3(x, y, z);
+}
+
+DistanceField::PartPtr DistanceField::MakePart(std::vector<Surfel> surfels) {
+  return std::make_shared<const Part>(std::move(surfels));
+}
+
+void DistanceField::FitNormals(const Int3& key, std::vector<Surfel>* surfels) const {
+  // Positions on the zero level are accurate to millimetres; the field's gradient is not as
+  // good a normal (it tilts where the field is steep or curved). A plane through the surfels of
+  // the 3×3×3 voxels around a fresh one gives its normal where they are planar; the field's
+  // normal orients it, and stays where the neighbourhood is not a plane (edges, thin parts).
+  std::vector<Surfel>& s = *surfels;
+  absl::flat_hash_map<uint32_t, uint32_t> by_voxel;
+  by_voxel.reserve(s.size());
+  for (size_t i = 0; i < s.size(); ++i) by_voxel.emplace(s[i].voxel & ~kFresh, uint32_t(i));
+  const double leaf = geometry_.leaf_m();
+  for (Surfel& x : s) {
+    if (!(x.voxel & kFresh)) continue;
+    x.voxel &= ~kFresh;
+    const Int3 g = VoxelOf(key, x.voxel);
+    const Int3 lo = key.cwiseProduct(geometry_.cells(0));
+    const Int3 hi = lo + geometry_.cells(0) - Int3::Ones();
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d second = Eigen::Matrix3d::Zero();
+    int count = 0;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          const Int3 h = g + Int3(dx, dy, dz);
+          if (!IntBox{lo, hi}.Contains(h)) continue;
+          auto it = by_voxel.find(VoxelIndex(key, h));
+          if (it == by_voxel.end()) continue;
+          const Eigen::Vector3d p(s[it->second].p[0], s[it->second].p[1], s[it->second].p[2]);
+          mean += p;
+          second += p * p.transpose();
+          ++count;
+        }
+    if (count < 5) continue;
+    mean /= count;
+    const Eigen::Matrix3d cov = second / count - mean * mean.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(cov);
+    const Eigen::Vector3d ev = eig.eigenvalues();  // ascending
+    // Planar: thin across (within a few millimetres) and spread along two directions.
+    if (!(ev[0] < 1e-5 && ev[1] > 0.1 * leaf * leaf * 0.5)) continue;
+    Eigen::Vector3d n = eig.eigenvectors().col(0);
+    const Eigen::Vector3d field(x.n[0], x.n[1], x.n[2]);
+    if (n.dot(field) < 0) n = -n;
+    // A fit far from the field's own normal is two surfaces meeting, not a plane.
+    if (n.dot(field) < 0.7) continue;
+    for (int a = 0; a < 3; ++a) x.n[a] = float(n[a]);
+  }
+}
+
+void DistanceField::Replace(const Int3& key, const std::vector<IntBox>& regions,
+                            std::vector<Surfel> fresh) {
+  for (Surfel& s : fresh) s.voxel |= kFresh;
+  PartPtr old;
+  {
+    std::shared_lock<std::shared_mutex> lock(mu_);
+    auto it = parts_.find(key);
+    if (it != parts_.end()) old = it->second;
+  }
+  if (old && !regions.empty()) {
+    for (const Surfel& s : old->surfels) {
+      const Int3 g = VoxelOf(key, s.voxel);
+      bool inside = false;
+      for (const IntBox& b : regions) inside = inside || b.Contains(g);
+      if (!inside) fresh.push_back(s);
+    }
+  }
+  // A fixed order, whatever order the regions were extracted in: saved bytes and tree layout
+  // depend on the map alone.
+  std::sort(fresh.begin(), fresh.end(), [](const Surfel& a, const Surfel& b) {
+    return (a.voxel & ~kFresh) < (b.voxel & ~kFresh);
+  });
+  FitNormals(key, &fresh);
+  PartPtr part = fresh.empty() ? nullptr : MakePart(std::move(fresh));
+  std::unique_lock<std::shared_mutex> lock(mu_);
+  if (part)
+    parts_[key] = std::move(part);
+  else
+    parts_.erase(key);
+}
+
+void DistanceField::Clear() {
+  std::unique_lock<std::shared_mutex> lock(mu_);
+  parts_.clear();
+}
+
+void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, float* sdf,
+                          float* gradient, uint8_t* saturated) const {
+  if (n == 0) return;
+  // The parts that can hold a surface within reach of some point of the batch.
+  Vec3f lo = Vec3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
+  for (size_t i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], xyz[3 * i + a]);
+      hi[a] = std::max(hi[a], xyz[3 * i + a]);
+    }
+  const float reach = max_distance_m + radius_;
+  std::vector<PartPtr> parts;
+  {
+    std::shared_lock<std::shared_mutex> lock(mu_);
+    for (const auto& [key, part] : parts_) {
+      bool apart = false;
+      for (int a = 0; a < 3; ++a)
+        apart = apart || part->lo[a] > hi[a] + reach || part->hi[a] < lo[a] - reach;
+      if (!apart) parts.push_back(part);
+    }
+  }
+  std::vector<std::pair<float, const Part*>> order(parts.size());
+  for (size_t i = 0; i < n; ++i) {
+    const float* q = xyz + 3 * i;
+    size_t m = 0;
+    for (const PartPtr& p : parts) {
+      const float d2 = BoxDistance2(q, p->lo, p->hi);
+      if (d2 < reach * reach) order[m++] = {d2, p.get()};
+    }
+    std::sort(order.begin(), order.begin() + m,
+              [](const auto& a, const auto& b) { return a.first < b.first; });
+    float best = max_distance_m;
+    const Surfel* nearest = nullptr;
+    for (size_t k = 0; k < m; ++k) {
+      const float bound = best + radius_;
+      if (order[k].first >= bound * bound) break;
+      const Part& part = *order[k].second;
+      NearestDisk search{part.surfels.data(), q, radius_, best};
+      part.tree.findNeighbors(search, q, nanoflann::SearchParams());
+      if (search.index >= 0) {
+        best = search.best;
+        nearest = &part.surfels[size_t(search.index)];
+      }
+    }
+    float* g = gradient ? gradient + 3 * i : nullptr;
+    if (!nearest) {
+      sdf[i] = max_distance_m;
+      if (g) g[0] = g[1] = g[2] = 0.f;
+      if (saturated) saturated[i] = 1;
+      continue;
+    }
+    // The nearest disk point c and the offset q - c: h·n within the disk, plus the part of the
+    // in-plane offset t beyond the rim outside it.
+    const Surfel& s = *nearest;
+    const float v[3] = {q[0] - s.p[0], q[1] - s.p[1], q[2] - s.p[2]};
+    const float h = Dot(v, s.n);
+    float t[3] = {v[0] - h * s.n[0], v[1] - h * s.n[1], v[2] - h * s.n[2]};
+    const float tl = std::sqrt(Dot(t, t));
+    const float keep = tl > radius_ ? 1.f - radius_ / tl : 0.f;
+    float diff[3];
+    for (int a = 0; a < 3; ++a) diff[a] = h * s.n[a] + keep * t[a];
+    const float d = std::sqrt(Dot(diff, diff));
+    const float sign = h >= 0.f ? 1.f : -1.f;
+    sdf[i] = sign * std::min(d, max_distance_m);
+    if (saturated) saturated[i] = 0;
+    if (g) {
+      if (d > 1e-9f) {
+        for (int a = 0; a < 3; ++a) g[a] = sign * diff[a] / d;
+      } else {
+        for (int a = 0; a < 3; ++a) g[a] = s.n[a];
+      }
+    }
+  }
+}
+
+DistanceFieldStats DistanceField::Stats() const {
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  DistanceFieldStats st;
+  for (const auto& [key, part] : parts_) {
+    st.surfels += int64_t(part->surfels.size());
+    st.bytes += int64_t(part->surfels.capacity() * sizeof(Surfel) +
+                        const_cast<Tree&>(part->tree).usedMemory(const_cast<Tree&>(part->tree)));
+    ++st.submaps;
+  }
+  return st;
+}
+
+void DistanceField::Serialize(ByteWriter* w) const {
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  w->F32(radius_);
+  w->U64(parts_.size());
+  for (const auto& [key, part] : parts_) {
+    for (int a = 0; a < 3; ++a) w->I32(key[a]);
+    w->PodVector(part->surfels);
+  }
+}
+
+absl::Status DistanceField::Deserialize(ByteReader* r) {
+  float radius;
+  uint64_t count;
+  RIM_RETURN_IF_ERROR(r->F32(&radius));
+  if (radius != radius_)
+    return absl::DataLossError(
+        absl::StrCat("surfel radius ", radius, " m, the config gives ", radius_));
+  RIM_RETURN_IF_ERROR(r->U64(&count));
+  if (count > r->remaining() / 20)
+    return absl::DataLossError(absl::StrCat(count, " sub-maps do not fit in the file"));
+  const Int3 cells = geometry_.cells(0);
+  const uint64_t voxels = uint64_t(cells.x()) * cells.y() * cells.z();
+  const double leaf = geometry_.leaf_m();
+  std::map<Int3, PartPtr, KeyLess> parts;
+  for (uint64_t k = 0; k < count; ++k) {
+    Int3 key;
+    for (int a = 0; a < 3; ++a) RIM_RETURN_IF_ERROR(r->I32(&key[a]));
+    if ((key.cwiseAbs().array() > (1 << 20)).any() || parts.count(key))
+      return absl::DataLossError(absl::StrCat("sub-map ", k, " has a bad or repeated key"));
+    std::vector<Surfel> surfels;
+    RIM_RETURN_IF_ERROR(r->PodVector(&surfels));
+    for (size_t i = 0; i < surfels.size(); ++i) {
+      const Surfel& s = surfels[i];
+      bool ok = s.voxel < voxels && (i == 0 || surfels[i - 1].voxel <= s.voxel);
+      const float n2 = Dot(s.n, s.n);
+      ok = ok && std::isfinite(n2) && std::abs(n2 - 1.f) < 1e-3f;
+      if (ok) {
+        const Int3 g = VoxelOf(key, s.voxel);
+        for (int a = 0; a < 3; ++a)
+          ok = ok && std::isfinite(s.p[a]) && s.p[a] >= (g[a] - 1) * leaf &&
+               s.p[a] <= (g[a] + 2) * leaf;
+      }
+      if (!ok)
+        return absl::DataLossError(absl::StrCat("surfel ", i, " of sub-map (", key.x(), ",",
+                                                key.y(), ",", key.z(), ") is out of order, ",
+                                                "outside its voxel or not finite"));
+    }
+    if (!surfels.empty()) parts[key] = MakePart(std::move(surfels));
+  }
+  std::unique_lock<std::shared_mutex> lock(mu_);
+  parts_ = std::move(parts);
+  return absl::OkStatus();
+}
+
+}  // namespace rim

@@ -1,0 +1,220 @@
+// The metric distance field on surfels of known surfaces: exact distances and unit gradients,
+// the bound and its flag, region replacement, and byte-exact persistence that refuses damage.
+#include "rim/map/distance_field.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "rim/config/config.h"
+
+namespace rim {
+namespace {
+
+class DistanceFieldTest : public ::testing::Test {
+ protected:
+  // Disks of 0.075 m cover a plane sampled on the 0.1 m voxel grid (the diagonal gap is 0.0707 m),
+  // so distances to it are exact.
+  DistanceFieldTest() : geometry_(GridConfig{}), field_(geometry_, kRadius) {}
+  static constexpr float kRadius = 0.075f;
+
+  // One surfel per voxel column of the plane z = z0 (normal +z) over [x0, x1) × [y0, y1), as
+  // extraction gives for a flat floor, sampled at voxel centres in x and y.
+  std::vector<Surfel> Floor(const Int3& key, float z0, float x0, float x1, float y0,
+                            float y1) const {
+    std::vector<Surfel> out;
+    const double s = geometry_.leaf_m();
+    for (int i = int(std::floor(x0 / s)); (i + 0.5) * s < x1; ++i)
+      for (int j = int(std::floor(y0 / s)); (j + 0.5) * s < y1; ++j) {
+        const Int3 g(i, j, int(std::floor(z0 / s)));
+        if (geometry_.SubmapOfLattice(0, g) != key) continue;
+        Surfel sf{{float((i + 0.5) * s), float((j + 0.5) * s), z0}, {0, 0, 1}, 0};
+        sf.voxel = field_.VoxelIndex(key, g);
+        out.push_back(sf);
+      }
+    return out;
+  }
+
+  void Query(const std::vector<float>& xyz, std::vector<float>* sdf, std::vector<float>* grad,
+             std::vector<uint8_t>* saturated, float max_d = 2.f) const {
+    const size_t n = xyz.size() / 3;
+    sdf->resize(n);
+    grad->resize(3 * n);
+    saturated->resize(n);
+    field_.Query(xyz.data(), n, max_d, sdf->data(), grad->data(), saturated->data());
+  }
+
+  MapGeometry geometry_;
+  DistanceField field_;
+};
+
+TEST_F(DistanceFieldTest, VoxelIndicesRoundTrip) {
+  for (const Int3& key : {Int3(0, 0, 0), Int3(-3, 2, -1), Int3(7, -9, 4)}) {
+    const Int3 lo = key.cwiseProduct(geometry_.cells(0));
+    for (const Int3& d : {Int3(0, 0, 0), Int3(199, 199, 59), Int3(5, 17, 33)})
+      EXPECT_EQ(field_.VoxelOf(key, field_.VoxelIndex(key, lo + d)), lo + d);
+  }
+}
+
+TEST_F(DistanceFieldTest, DistancesToAFloorAreExactWithUnitGradients) {
+  const Int3 key(0, 0, 0);
+  field_.Replace(key, {}, Floor(key, 0.3f, 1.f, 9.f, 1.f, 9.f));
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> xy(3.f, 7.f), z(-1.5f, 2.2f);
+  std::vector<float> xyz;
+  for (int i = 0; i < 2000; ++i) xyz.insert(xyz.end(), {xy(rng), xy(rng), z(rng)});
+  std::vector<float> sdf, grad;
+  std::vector<uint8_t> sat;
+  Query(xyz, &sdf, &grad, &sat);
+  for (size_t i = 0; i < sdf.size(); ++i) {
+    const float truth = xyz[3 * i + 2] - 0.3f;
+    if (std::abs(truth) >= 2.f) {
+      EXPECT_EQ(sat[i], 1);
+      EXPECT_EQ(sdf[i], 2.f);  // saturated reads +bound, whatever side
+      EXPECT_EQ(grad[3 * i + 2], 0.f);
+      continue;
+    }
+    EXPECT_EQ(sat[i], 0);
+    EXPECT_NEAR(sdf[i], truth, 1e-5f) << "z " << xyz[3 * i + 2];
+    // +z on both sides (toward larger values). A disk just beyond its rim can tie with one
+    // overhead in float rounding, which tilts the gradient by well under a milliradian.
+    EXPECT_NEAR(grad[3 * i + 2], 1.f, 1e-5f);
+    EXPECT_NEAR(grad[3 * i], 0.f, 1e-3f);
+  }
+}
+
+TEST_F(DistanceFieldTest, BeyondAnEdgeTheGradientPointsAwayFromItAndMatchesFiniteDifferences) {
+  // A floor that ends at x = 5: past it, the nearest surface is its edge.
+  const Int3 key(0, 0, 0);
+  field_.Replace(key, {}, Floor(key, 0.5f, 1.f, 5.f, 1.f, 9.f));
+  std::vector<float> xyz;
+  for (float x = 5.3f; x < 6.3f; x += 0.1f)
+    for (float zz = 0.7f; zz < 1.8f; zz += 0.2f) xyz.insert(xyz.end(), {x, 4.05f, zz});
+  std::vector<float> sdf, grad;
+  std::vector<uint8_t> sat;
+  Query(xyz, &sdf, &grad, &sat);
+  const float edge = 4.95f + kRadius;  // last column's centre plus the disk radius
+  for (size_t i = 0; i < sdf.size(); ++i) {
+    const float dx = xyz[3 * i] - edge, dz = xyz[3 * i + 2] - 0.5f;
+    const float truth = std::hypot(dx, dz);
+    EXPECT_NEAR(sdf[i], truth, 1e-4f);
+    EXPECT_NEAR(grad[3 * i], dx / truth, 1e-4f);
+    EXPECT_NEAR(grad[3 * i + 2], dz / truth, 1e-4f);
+    // Central differences of the field itself.
+    const float h = 1e-3f;
+    for (int a : {0, 2}) {
+      std::vector<float> pm = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+      std::vector<float> pp = pm;
+      pm[a] -= h;
+      pp[a] += h;
+      std::vector<float> vm, vp, g;
+      std::vector<uint8_t> s;
+      Query(pm, &vm, &g, &s);
+      Query(pp, &vp, &g, &s);
+      EXPECT_NEAR((vp[0] - vm[0]) / (2 * h), grad[3 * i + a], 2e-3f);
+    }
+  }
+}
+
+TEST_F(DistanceFieldTest, TheNearestOfSeveralSubmapsWins) {
+  // Two sub-maps side by side (x < 20 m and x >= 20 m) with floors at different heights.
+  field_.Replace(Int3(0, 0, 0), {}, Floor(Int3(0, 0, 0), 0.2f, 15.f, 20.f, 1.f, 5.f));
+  field_.Replace(Int3(1, 0, 0), {}, Floor(Int3(1, 0, 0), 0.6f, 20.f, 25.f, 1.f, 5.f));
+  std::vector<float> sdf, grad;
+  std::vector<uint8_t> sat;
+  Query({19.95f, 3.05f, 1.f, 20.05f, 3.05f, 1.f, 30.f, 3.f, 1.f}, &sdf, &grad, &sat);
+  // Above the lower floor's last column, the higher floor's first disk (0.025 m beyond its rim)
+  // is nearer than the floor below.
+  EXPECT_NEAR(sdf[0], std::hypot(0.4f, 0.1f - kRadius), 1e-5f);
+  EXPECT_NEAR(sdf[1], 0.4f, 1e-5f);
+  EXPECT_EQ(sat[2], 1);  // 5 m from both
+  EXPECT_EQ(field_.Stats().submaps, 2);
+}
+
+TEST_F(DistanceFieldTest, ReplaceTouchesOnlyItsRegion) {
+  const Int3 key(0, 0, 0);
+  field_.Replace(key, {}, Floor(key, 0.3f, 1.f, 9.f, 1.f, 9.f));
+  const int64_t before = field_.Stats().surfels;
+  // Lift the floor inside x, y in [3, 5) m (voxels 30..49) to 0.8 m.
+  const IntBox region{Int3(30, 30, 0), Int3(49, 49, 59)};
+  std::vector<Surfel> lifted = Floor(key, 0.8f, 3.01f, 5.f, 3.01f, 5.f);
+  ASSERT_EQ(lifted.size(), 400u);
+  field_.Replace(key, {region}, lifted);
+  EXPECT_EQ(field_.Stats().surfels, before - 400 + 400);
+  std::vector<float> sdf, grad;
+  std::vector<uint8_t> sat;
+  Query({4.f, 4.f, 1.f, 7.f, 7.f, 1.f}, &sdf, &grad, &sat);
+  EXPECT_NEAR(sdf[0], 0.2f, 1e-5f);
+  EXPECT_NEAR(sdf[1], 0.7f, 1e-5f);
+  // Replacing a region with nothing empties it; an emptied sub-map is dropped.
+  field_.Replace(key, {IntBox{Int3(0, 0, 0), Int3(199, 199, 59)}}, {});
+  EXPECT_EQ(field_.Stats().submaps, 0);
+}
+
+TEST_F(DistanceFieldTest, SaveLoadIsByteExactAndDamageIsRefused) {
+  field_.Replace(Int3(0, 0, 0), {}, Floor(Int3(0, 0, 0), 0.3f, 1.f, 6.f, 1.f, 6.f));
+  field_.Replace(Int3(-1, 0, 0), {}, Floor(Int3(-1, 0, 0), 0.3f, -6.f, -1.f, 1.f, 6.f));
+  ByteWriter w;
+  field_.Serialize(&w);
+  DistanceField loaded(geometry_, kRadius);
+  {
+    ByteReader r(w.data(), "field");
+    ASSERT_TRUE(loaded.Deserialize(&r).ok());
+    EXPECT_TRUE(r.ExpectEnd().ok());
+  }
+  ByteWriter again;
+  loaded.Serialize(&again);
+  EXPECT_EQ(again.data(), w.data());
+  std::vector<float> a(1), b(1), g(3);
+  std::vector<uint8_t> s(1);
+  const float q[3] = {3.f, 3.f, 1.1f};
+  field_.Query(q, 1, 2.f, a.data(), g.data(), s.data());
+  loaded.Query(q, 1, 2.f, b.data(), g.data(), s.data());
+  EXPECT_EQ(a, b);
+
+  const size_t header = 4 + 8 + 12 + 8;  // radius, count, first key, first surfel count
+  auto refused = [&](std::string bytes, const std::string& why) {
+    DistanceField target(geometry_, kRadius);
+    target.Replace(Int3(2, 2, 0), {}, Floor(Int3(2, 2, 0), 0.3f, 41.f, 42.f, 41.f, 42.f));
+    ByteReader r(bytes, "field");
+    const absl::Status st = target.Deserialize(&r);
+    EXPECT_FALSE(st.ok()) << why;
+    EXPECT_EQ(target.Stats().submaps, 1) << why << ": a refused load changed the field";
+  };
+  refused(w.data().substr(0, w.data().size() / 2), "truncated");
+  std::string bad = w.data();
+  float nan = std::nanf("");
+  std::memcpy(&bad[header + 12], &nan, 4);  // first surfel's normal x
+  refused(bad, "non-finite normal");
+  bad = w.data();
+  const uint32_t huge = 0xFFFFFFF0u;
+  std::memcpy(&bad[header + 24], &huge, 4);  // first surfel's voxel
+  refused(bad, "voxel out of range");
+  bad = w.data();
+  const float far = 1e5f;
+  std::memcpy(&bad[header], &far, 4);  // first surfel's x, far from its voxel
+  refused(bad, "surfel outside its voxel");
+  DistanceField other_radius(geometry_, 0.1f);
+  ByteReader r(w.data(), "field");
+  EXPECT_FALSE(other_radius.Deserialize(&r).ok());
+}
+
+TEST(QueryConfigTest, BadMaxDistanceIsRefusedByName) {
+  for (const char* bad :
+       {"query.max_distance_m=0", "query.max_distance_m=-1", "query.max_distance_m=nan",
+        "query.max_distance_m=inf", "query.max_distance_m=1000"}) {
+    MapperConfig c;
+    const absl::Status s = ApplyOverrides({bad}, &c);
+    ASSERT_FALSE(s.ok()) << bad;
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(std::string(s.message()).find("query.max_distance_m"), std::string::npos) << s;
+  }
+  MapperConfig c;
+  EXPECT_TRUE(ApplyOverrides({"query.max_distance_m=0.5"}, &c).ok());
+  EXPECT_FALSE(ApplyOverrides({"query.refresh_frames=0"}, &c).ok());
+  EXPECT_FALSE(ApplyOverrides({"query.surfel_radius_voxels=0.1"}, &c).ok());
+}
+
+}  // namespace
+}  // namespace rim
