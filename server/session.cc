@@ -12,6 +12,10 @@
 namespace rim::server {
 namespace {
 
+double SteadySeconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
 double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
@@ -195,15 +199,26 @@ void Session::Run() {
       std::optional<ComputeScheduler::Lease> slot;
       if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
       status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+      const double now = SteadySeconds();
+      if (timing.distance_s > 0) {  // IntegrateScan's own refresh, every query.refresh_frames
+        last_refresh_end_s_ = now;
+        last_refresh_s_ = timing.distance_s;
+      }
       // Nothing waiting: bring the distance field up to this frame before it is acknowledged,
-      // so that a planner that waited for the ack reads distances from it.
+      // so that a planner that waited for the ack reads distances from it; but at most a fifth
+      // of the session's time goes to refreshing, or a robot streaming at the rate the map can
+      // integrate would lose its training to them.
       bool idle;
       {
         std::lock_guard<std::mutex> relock(mu_);
         idle = queue_.empty();
       }
-      if (status.ok() && idle && mapper_->DistanceFieldBehind())
-        timing.distance_s += mapper_->RefreshDistanceField();
+      if (status.ok() && idle && now - last_refresh_end_s_ >= 4 * last_refresh_s_ &&
+          mapper_->DistanceFieldBehind()) {
+        last_refresh_s_ = mapper_->RefreshDistanceField();
+        last_refresh_end_s_ = SteadySeconds();
+        timing.distance_s += last_refresh_s_;
+      }
     }
 
     if (options_.events) {

@@ -133,6 +133,9 @@ class Session {
   std::vector<std::function<void()>> space_waiters_;
   SessionStats stats_;
   absl::Status last_checkpoint_;
+  // Trainer thread only: when the distance field's last refresh ended and how long it took
+  // (steady clock seconds), to keep refreshes between frames to a share of the session's time.
+  double last_refresh_end_s_ = -1e9, last_refresh_s_ = 0;
   TileCache tiles_;
   // Held while joining trainer_, so that concurrent Close() calls neither race on the thread
   // object nor join it twice.

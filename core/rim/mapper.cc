@@ -338,9 +338,12 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
     }
     std::vector<float> band_sdf(band.size());
     if (!band.empty()) EvalNeural(band_xyz.data(), band.size(), band_sdf.data(), nullptr, nullptr);
+    // The gradient turns too, except within a couple of centimetres of the surface: there the
+    // two disagree because the network's zero level and the disks' planes lie millimetres apart,
+    // and the gradient of a signed distance at its surface is the normal on either side.
     auto flip = [&](size_t i) {
       out->sdf[i] = -out->sdf[i];
-      if (want_gradient)
+      if (want_gradient && std::abs(out->sdf[i]) > 0.02f)
         for (int a = 0; a < 3; ++a) out->gradient[3 * i + a] = -out->gradient[3 * i + a];
     };
     for (size_t k = 0; k < band.size(); ++k)

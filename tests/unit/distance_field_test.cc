@@ -77,10 +77,10 @@ TEST_F(DistanceFieldTest, DistancesToAFloorAreExactWithUnitGradients) {
     }
     EXPECT_EQ(sat[i], 0);
     EXPECT_NEAR(sdf[i], truth, 1e-5f) << "z " << xyz[3 * i + 2];
-    // +z on both sides (toward larger values). A disk just beyond its rim can tie with one
-    // overhead in float rounding, which tilts the gradient by well under a milliradian.
+    // +z on both sides (toward larger values): over a disk, its normal.
     EXPECT_NEAR(grad[3 * i + 2], 1.f, 1e-5f);
     EXPECT_NEAR(grad[3 * i], 0.f, 1e-3f);
+    EXPECT_NEAR(grad[3 * i + 1], 0.f, 1e-3f);
   }
 }
 
@@ -99,8 +99,10 @@ TEST_F(DistanceFieldTest, BeyondAnEdgeTheGradientPointsAwayFromItAndMatchesFinit
     const float dx = xyz[3 * i] - edge, dz = xyz[3 * i + 2] - 0.5f;
     const float truth = std::hypot(dx, dz);
     EXPECT_NEAR(sdf[i], truth, 1e-4f);
-    EXPECT_NEAR(grad[3 * i], dx / truth, 1e-4f);
-    EXPECT_NEAR(grad[3 * i + 2], dz / truth, 1e-4f);
+    // The rims of the edge's neighbouring disks, nearly as near, turn the gradient a little (by
+    // design: it turns smoothly where several disks are about as near).
+    EXPECT_NEAR(grad[3 * i], dx / truth, 5e-3f);
+    EXPECT_NEAR(grad[3 * i + 2], dz / truth, 5e-3f);
     // Central differences of the field itself.
     const float h = 1e-3f;
     for (int a : {0, 2}) {
@@ -112,7 +114,7 @@ TEST_F(DistanceFieldTest, BeyondAnEdgeTheGradientPointsAwayFromItAndMatchesFinit
       std::vector<uint8_t> s;
       Query(pm, &vm, &g, &s);
       Query(pp, &vp, &g, &s);
-      EXPECT_NEAR((vp[0] - vm[0]) / (2 * h), grad[3 * i + a], 2e-3f);
+      EXPECT_NEAR((vp[0] - vm[0]) / (2 * h), grad[3 * i + a], 6e-3f);
     }
   }
 }

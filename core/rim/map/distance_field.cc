@@ -30,6 +30,8 @@ using Tree = nanoflann::KDTreeSingleIndexAdaptor<
     nanoflann::L2_Simple_Adaptor<float, SurfelAdaptor, float, uint32_t>, SurfelAdaptor, 3,
     uint32_t>;
 constexpr size_t kMaxLeaf = 16;
+// Disks this much farther than the nearest still turn the gradient (see Query).
+constexpr float kBlend = 0.02f;
 
 float Dot(const float* a, const float* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
@@ -43,16 +45,40 @@ inline float DiskDistance(const Surfel& s, const float* q, float r) {
   return std::sqrt(h * h + k * k);
 }
 
-// A nanoflann result set that keeps the nearest disk: a surfel farther than best + r (centre to
-// query) cannot hold a disk point nearer than best, so that bounds the search.
+// The gradient of the signed distance to s's disk at q: the unit vector from the disk's nearest
+// point to q, turned to point toward larger values (the normal for a point on the disk); also the
+// distance, and the side of the disk's plane (+1 on the normal's side).
+Vec3f AwayFrom(const Surfel& s, const float* q, float r, float* d, float* sign,
+               bool* on_face = nullptr) {
+  const float v[3] = {q[0] - s.p[0], q[1] - s.p[1], q[2] - s.p[2]};
+  const float h = Dot(v, s.n);
+  const float t[3] = {v[0] - h * s.n[0], v[1] - h * s.n[1], v[2] - h * s.n[2]};
+  const float tl = std::sqrt(Dot(t, t));
+  // The offset q - c: h·n within the disk, plus the part of the in-plane offset beyond the rim.
+  const float keep = tl > r ? 1.f - r / tl : 0.f;
+  if (on_face) *on_face = tl <= r;
+  Vec3f diff;
+  for (int a = 0; a < 3; ++a) diff[a] = h * s.n[a] + keep * t[a];
+  *d = diff.norm();
+  *sign = h >= 0.f ? 1.f : -1.f;
+  if (*d > 1e-9f) return diff / *d * *sign;
+  return Vec3f(s.n[0], s.n[1], s.n[2]);
+}
+
+// A nanoflann result set that keeps the nearest disk, and the disks within `blend` of the best
+// distance seen so far (for the gradient): a surfel farther than best + blend + r (centre to
+// query) can hold neither, which bounds the search.
 struct NearestDisk {
+  static constexpr int kKeep = 16;
   const Surfel* surfels;
   const float* q;
-  float r;
+  float r, blend;
   float best;
   int64_t index = -1;
+  int kept = 0;
+  std::array<std::pair<float, uint32_t>, kKeep> near;
   float worstDist() const {
-    const float w = best + r;
+    const float w = best + blend + r;
     return w * w;
   }
   bool full() const { return true; }
@@ -61,6 +87,22 @@ struct NearestDisk {
     if (d < best) {
       best = d;
       index = i;
+    }
+    if (d < best + blend) {
+      if (kept == kKeep) {  // drop those the best has left behind, then the farthest
+        int w = 0;
+        for (int k = 0; k < kept; ++k)
+          if (near[k].first < best + blend) near[w++] = near[k];
+        kept = w;
+        if (kept == kKeep) {
+          int far = 0;
+          for (int k = 1; k < kept; ++k)
+            if (near[k].first > near[far].first) far = k;
+          if (near[far].first <= d) return true;
+          near[far] = near[--kept];
+        }
+      }
+      near[kept++] = {d, i};
     }
     return true;
   }
@@ -238,16 +280,21 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
               [](const auto& a, const auto& b) { return a.first < b.first; });
     float best = max_distance_m;
     const Surfel* nearest = nullptr;
+    // Disks within kBlend of the nearest, over every part searched.
+    std::array<std::pair<float, const Surfel*>, 2 * NearestDisk::kKeep> near;
+    int kept = 0;
     for (size_t k = 0; k < m; ++k) {
-      const float bound = best + radius_;
+      const float bound = best + kBlend + radius_;
       if (order[k].first >= bound * bound) break;
       const Part& part = *order[k].second;
-      NearestDisk search{part.surfels.data(), q, radius_, best};
+      NearestDisk search{part.surfels.data(), q, radius_, kBlend, best};
       part.tree.findNeighbors(search, q, nanoflann::SearchParams());
       if (search.index >= 0) {
         best = search.best;
         nearest = &part.surfels[size_t(search.index)];
       }
+      for (int j = 0; j < search.kept && kept < int(near.size()); ++j)
+        near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second]};
     }
     float* g = gradient ? gradient + 3 * i : nullptr;
     if (!nearest) {
@@ -256,27 +303,41 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
       if (saturated) saturated[i] = 1;
       continue;
     }
-    // The nearest disk point c and the offset q - c: h·n within the disk, plus the part of the
-    // in-plane offset t beyond the rim outside it.
-    const Surfel& s = *nearest;
-    const float v[3] = {q[0] - s.p[0], q[1] - s.p[1], q[2] - s.p[2]};
-    const float h = Dot(v, s.n);
-    float t[3] = {v[0] - h * s.n[0], v[1] - h * s.n[1], v[2] - h * s.n[2]};
-    const float tl = std::sqrt(Dot(t, t));
-    const float keep = tl > radius_ ? 1.f - radius_ / tl : 0.f;
-    float diff[3];
-    for (int a = 0; a < 3; ++a) diff[a] = h * s.n[a] + keep * t[a];
-    const float d = std::sqrt(Dot(diff, diff));
-    const float sign = h >= 0.f ? 1.f : -1.f;
+    float d = 0, sign = 1;
+    bool on_face = false;
+    const Vec3f away = AwayFrom(*nearest, q, radius_, &d, &sign, &on_face);
     sdf[i] = sign * std::min(d, max_distance_m);
     if (saturated) saturated[i] = 0;
-    if (g) {
-      if (d > 1e-9f) {
-        for (int a = 0; a < 3; ++a) g[a] = sign * diff[a] / d;
-      } else {
-        for (int a = 0; a < 3; ++a) g[a] = s.n[a];
-      }
+    if (!g) continue;
+    if (on_face) {  // over the nearest disk: its normal, exactly
+      for (int a = 0; a < 3; ++a) g[a] = away[a];
+      continue;
     }
+    // Beside every disk, the nearest point is a rim: in a gap between neighbouring disks, or past
+    // an edge. The gradient: the directions away from the disks nearly as near as the nearest,
+    // weighted down to zero at `blend` farther, so that it turns smoothly across gaps and the
+    // medial surfaces between two faces instead of tilting toward whichever rim is nearest.
+    // The width: none at the surface, where a neighbouring disk's rim lies in the surface's own
+    // plane and its direction would tilt the normal; and far out no wider than reaches disks
+    // about 2.5 radii to the side (a width w at distance d reaches sqrt(2 d w)), which spans
+    // the gaps between disks without a lopsided crowd of them.
+    const float blend = std::min({kBlend, 0.1f * best, 3.f * radius_ * radius_ / best});
+    Vec3f sum = Vec3f::Zero();
+    bool covered = false;
+    for (int j = 0; j < kept && !covered; ++j) {
+      const float w = blend > 0.f ? 1.f - (near[j].first - best) / blend : 0.f;
+      if (w <= 0.f) continue;
+      float dj, sj;
+      bool face_j = false;
+      const Vec3f away_j = AwayFrom(*near[j].second, q, radius_, &dj, &sj, &face_j);
+      // A disk over q that lost to a rim by float rounding: q is over a face after all.
+      if (face_j)
+        sum = away_j, covered = true;
+      else
+        sum += w * away_j;
+    }
+    const Vec3f dir = sum.norm() > 1e-6f ? Vec3f(sum.normalized()) : away;
+    for (int a = 0; a < 3; ++a) g[a] = dir[a];
   }
 }
 
