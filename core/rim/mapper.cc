@@ -199,7 +199,11 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
-  if (distance_frames_ < 0 || frames_ - distance_frames_ >= config_.query.refresh_frames)
+  // Every query.refresh_frames frames, and more often while the map is young and small (after
+  // frames 1, 2, 4, 8, ...), so that a short session's first queries see its surfaces.
+  if (distance_frames_ < 0 ||
+      frames_ - distance_frames_ >=
+          std::min<int64_t>(config_.query.refresh_frames, std::max<int64_t>(1, distance_frames_)))
     t.distance_s = RefreshDistanceField();
   t.sample_s = it.sample_s;
   t.encode_s = it.encode_s;

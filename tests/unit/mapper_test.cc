@@ -291,7 +291,7 @@ TEST(MapperDistanceTest, TheDistanceFieldIsSavedAndACorruptFileIsDataLossNamingI
   ASSERT_TRUE(mapper.ok());
   for (uint32_t i = 1; i <= 5; ++i)
     ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, i)).ok());
-  // Refreshed after frames 1 and 4: frame 5 is not in the field yet, and a restored mapper lags
+  // Refreshed after frames 1, 2 and 4: frame 5 is not in the field yet, and a restored mapper lags
   // it the same way.
   EXPECT_TRUE((*mapper)->DistanceFieldBehind());
   ASSERT_GT((*mapper)->Stats().distance_surfels, 100);
