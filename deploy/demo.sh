@@ -2,7 +2,7 @@
 # The README's main job, end to end on one machine: install what is missing, build, start
 # rim_server on loopback, create a session, stream the built-in synthetic city to it (rimctl
 # stream ROBOT sim:city), pull the mesh tiles, score the mesh against the simulator's ground truth
-# with rim_eval, draw an SDF slice, print the numbers and the server's own metrics, stop the
+# with rim_eval, draw distance slices, print the numbers and the server's own metrics, stop the
 # server. Everything it writes goes to one folder, printed at the end.
 #
 # Usage: bash deploy/demo.sh [OUT_DIR]
@@ -70,10 +70,14 @@ END=$(date +%s.%N)
 say "mesh tiles"
 "$RIMCTL" mesh "$ROBOT" --out "$OUT/mesh"
 
-say "SDF slice 0.5 m above the street"
-# The city's drive runs along x from (100, -1.75) at 1 m per frame.
+say "distance slices: 0.6 m above the street, and across it"
+# The city's drive runs along x from (100, -1.75) at 1 m per frame. Queries answer the Euclidean
+# distance to the mapped surface (bounded at 2 m), drawn with contour lines every 0.25 m.
 X1=$(python3 -c "print(100 + $FRAMES + 8)")
-"$RIMCTL" query "$ROBOT" --grid "92,-12,0.5,$X1,8,0.5,0.1" --out "$OUT/slice.png"
+XMID=$(python3 -c "print(100 + $FRAMES // 2 + 0.05)")
+"$RIMCTL" query "$ROBOT" --grid "92,-12,0.6,$X1,8,0.6,0.1" --out "$OUT/slice.png" --range 2
+"$RIMCTL" query "$ROBOT" --grid "$XMID,-12.5,-0.5,$XMID,8.5,3.5,0.05" \
+  --out "$OUT/slice-street.png" --range 2
 
 say "accuracy against the simulator's ground truth"
 # The same city (same seed and frames) written to disk for its ground truth only.
@@ -120,6 +124,7 @@ print(f"streamed {frames} frames in {end - start:.1f} s ({frames / (end - start)
 print(f"accuracy {acc:.2f} cm, completeness {comp:.2f} cm, Chamfer-L1 {(acc + comp) / 2:.2f} cm, "
       f"precision {prec:.2f} %, recall {rec:.2f} %, F-score {f:.2f} % (10 cm)")
 print(f"mesh:      {os.path.join(out, 'mesh', 'mesh.ply')} (tiles: {os.path.join(out, 'mesh')}/*.drc)")
-print(f"SDF slice: {os.path.join(out, 'slice.png')}")
+print(f"distance slices: {os.path.join(out, 'slice.png')} (0.6 m above the street), "
+      f"{os.path.join(out, 'slice-street.png')} (across it)")
 print(f"metrics:   {os.path.join(out, 'metrics.txt')}; server log: {os.path.join(out, 'server.log')}")
 PY

@@ -19,8 +19,10 @@ grep -q "rim_scans_integrated_total{session=\"demo_car\"} $FRAMES" "$WORK/out/me
   fail "the server's metrics do not count $FRAMES integrated scans"
 [ -s "$WORK/out/mesh/mesh.ply" ] || fail "no mesh.ply"
 ls "$WORK/out/mesh/"*.drc > /dev/null || fail "no .drc tiles"
-head -c 8 "$WORK/out/slice.png" | od -An -tx1 | grep -q "89 50 4e 47 0d 0a 1a 0a" ||
-  fail "slice.png is not a PNG"
+for slice in slice.png slice-street.png; do
+  head -c 8 "$WORK/out/$slice" | od -An -tx1 | grep -q "89 50 4e 47 0d 0a 1a 0a" ||
+    fail "$slice is not a PNG"
+done
 python3 - "$WORK/out/summary.txt" << 'PY'
 import re, sys
 text = open(sys.argv[1]).read()
