@@ -311,14 +311,21 @@ absl::Status Mapper::QueryNeural(const float* xyz, size_t n, bool want_gradient,
 absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
                               QueryResult* out) const {
   RIM_RETURN_IF_ERROR(CheckQueryPoints(xyz, n));
-  std::shared_lock<std::shared_mutex> lock(mu_);
-  saver_->Flush();  // under the lock, as in QueryNeural
   out->sdf.resize(n);
   out->observed.resize(n);
   out->saturated.resize(n);
   out->gradient.assign(want_gradient ? 3 * n : 0, 0.f);
+  // The version the answer starts from; a large batch may read newer ones in later chunks.
+  out->map_version = map_version_.load();
   const double inv_s = 1.0 / geometry_->leaf_m();
   ForChunks(n, config_.train.threads, [&](size_t begin, size_t m) {
+    // Distances come from the field's own snapshots; the map itself (observed flags, the
+    // network's side inside surface bands) is read under the shared lock one chunk at a time,
+    // so that training waits for at most one chunk of a large batch, not the whole of it.
+    distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
+                     want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin]);
+    std::shared_lock<std::shared_mutex> lock(mu_);
+    saver_->Flush();  // under the lock, as in QueryNeural
     FeatureReader reader(*local_map_, *store_);
     for (size_t i = begin; i < begin + m; ++i) {
       const float* q = xyz + 3 * i;
@@ -326,8 +333,6 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
                     int(std::floor(q[2] * inv_s)));
       out->observed[i] = ObservedCode(reader.ObservedBits(g0));
     }
-    distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
-                     want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin]);
     // The sign. The side of the nearest disk's plane is wrong past a convex edge (the disk's
     // plane runs on beyond it) and before a stray surfel. A voxel that rays crossed, away from
     // any surface band, is free space; inside a surface band the network, trained there, knows
@@ -355,7 +360,6 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
     for (size_t i = begin; i < begin + m; ++i)
       if (out->observed[i] == QueryResult::kObservedFree && out->sdf[i] < 0) flip(i);
   });
-  out->map_version = map_version_.load();
   return absl::OkStatus();
 }
 
