@@ -183,15 +183,17 @@ absl::Status MapperConfig::Validate() const {
   if (buffer.outlier_period_frames < 1) return Bad("buffer.outlier_period_frames", "must be >= 1");
   if (!(buffer.outlier_threshold_m > 0.f)) return Bad("buffer.outlier_threshold_m", "must be > 0");
 
+  // Voxels of a given size in a sub-map (the local box's size): the deferred store and the
+  // distance field index voxels within a sub-map in 32 bits.
+  auto voxels_per_submap = [&g](double voxel_m) {
+    return std::ceil(2.0 * g.half_extent_x_m / voxel_m) *
+           std::ceil(2.0 * g.half_extent_y_m / voxel_m) *
+           std::ceil((g.z_max_m - g.z_min_m) / voxel_m);
+  };
   if (!(deferred.voxel_m >= 0.01f && deferred.voxel_m <= 10.f))
     return Bad("deferred.voxel_m", "must be in [0.01, 10]");
-  {
-    // Voxel indices inside a sub-map (the local box's size) must fit in 32 bits.
-    const double per_submap = std::ceil(2.0 * g.half_extent_x_m / deferred.voxel_m) *
-                              std::ceil(2.0 * g.half_extent_y_m / deferred.voxel_m) *
-                              std::ceil((g.z_max_m - g.z_min_m) / deferred.voxel_m);
-    if (per_submap > 4e9) return Bad("deferred.voxel_m", "gives more than 4e9 voxels per sub-map");
-  }
+  if (voxels_per_submap(deferred.voxel_m) > 4e9)
+    return Bad("deferred.voxel_m", "gives more than 4e9 voxels per sub-map");
   if (deferred.max_points_per_submap < 8 || deferred.max_points_per_submap > 100000000)
     return Bad("deferred.max_points_per_submap", "must be in [8, 1e8]");
 
@@ -201,13 +203,9 @@ absl::Status MapperConfig::Validate() const {
     return Bad("query.refresh_frames", "must be in [1, 10000]");
   if (!(query.surfel_radius_voxels >= 0.5f && query.surfel_radius_voxels <= 2.f))
     return Bad("query.surfel_radius_voxels", "must be in [0.5, 2]");
-  {
-    // Surfels name their finest voxel by an index within the sub-map (the local box's size).
-    const double per_submap = std::ceil(2.0 * g.half_extent_x_m / g.leaf_size_m) *
-                              std::ceil(2.0 * g.half_extent_y_m / g.leaf_size_m) *
-                              std::ceil((g.z_max_m - g.z_min_m) / g.leaf_size_m);
-    if (per_submap > 2e9) return Bad("grid.leaf_size_m", "gives more than 2e9 voxels per sub-map");
-  }
+  // Surfels name their finest voxel in 31 bits (the top bit marks fresh ones while fitting).
+  if (voxels_per_submap(g.leaf_size_m) > 2e9)
+    return Bad("grid.leaf_size_m", "gives more than 2e9 voxels per sub-map");
 
   if (submap.block_size < 2 || submap.block_size > 64)
     return Bad("submap.block_size", "must be in [2, 64]");
