@@ -37,6 +37,47 @@ const std::vector<float>& QueryPoints() {
   return *points;
 }
 
+// Where rim_load's planner asks: within ±10 m (x, y) and ±2 m (z) of a mapped frame's sensor
+// position, so mostly in open space and below the ground, fixed seed.
+const std::vector<float>& PlannerPoints() {
+  static const std::vector<float>* points = [] {
+    const std::vector<PosedScan>& frames = CitySequence();
+    const int n_frames = std::max(1, std::min<int>(Options().map_frames, int(frames.size())));
+    std::mt19937_64 rng(4321);
+    std::uniform_int_distribution<int> pick_frame(0, n_frames - 1);
+    std::uniform_real_distribution<float> u(-10.f, 10.f);
+    auto* out = new std::vector<float>();
+    out->reserve(3 * 100000);
+    while (out->size() < 3 * 100000) {
+      const Vec3d c = frames[pick_frame(rng)].T_world_sensor.translation();
+      out->insert(out->end(), {float(c.x()) + u(rng), float(c.y()) + u(rng), 0.2f * u(rng)});
+    }
+    return out;
+  }();
+  return *points;
+}
+
+// 100k of PlannerPoints(); arg: field (0: QuerySdf, 1: QueryNeural).
+void BM_QueryPlanner(benchmark::State& state) {
+  const Mapper& mapper = TrainedMapper();
+  const std::vector<float>& xyz = PlannerPoints();
+  const size_t n = xyz.size() / 3;
+  QueryResult result;
+  WallClock clock;
+  for (auto _ : state) {
+    clock.Start();
+    CheckOk(state.range(0) ? mapper.QueryNeural(xyz.data(), n, false, &result)
+                           : mapper.QuerySdf(xyz.data(), n, false, &result),
+            "QuerySdf");
+    benchmark::DoNotOptimize(result.sdf.data());
+    clock.Stop();
+  }
+  size_t saturated = 0;
+  for (uint8_t s : result.saturated) saturated += s != 0;
+  state.counters["points_per_s"] = double(n) * double(state.iterations()) / clock.seconds();
+  state.counters["saturated_fraction"] = double(saturated) / double(n);
+}
+
 // Args: batch size, gradient (0/1), field (0: the metric distances of QuerySdf, 1: the
 // network's own values, QueryNeural).
 void BM_Query(benchmark::State& state) {
@@ -187,6 +228,11 @@ void RegisterMapBenchmarks() {
       }
     }
   }
+  benchmark::RegisterBenchmark("QueryPlanner", BM_QueryPlanner)
+      ->ArgNames({"neural"})
+      ->DenseRange(0, 1)
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
   for (auto [name, fn] :
        {std::pair{"MeshTile", BM_MeshTile}, std::pair{"DracoEncodeTile", BM_DracoEncodeTile},
         std::pair{"Session/Save", BM_SaveSession}, std::pair{"Session/Load", BM_LoadSession}}) {

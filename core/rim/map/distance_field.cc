@@ -269,7 +269,22 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     }
   }
   std::vector<std::pair<float, const Part*>> order(parts.size());
+  // Points in a spatially coherent order (by 0.5 m cell), each search seeded with its distance to
+  // the previous point's nearest disk: a bound that prunes the trees from the start, where a
+  // search from the bound alone first wanders through every disk within max_distance_m. The
+  // distance found is the same whatever the seed.
+  std::vector<std::pair<uint64_t, uint32_t>> visit(n);
   for (size_t i = 0; i < n; ++i) {
+    uint64_t key = 0;
+    for (int a = 0; a < 3; ++a)
+      key = (key << 21) |
+            (uint64_t(int64_t(std::floor(xyz[3 * i + a] * 2.f)) + (1 << 20)) & ((1u << 21) - 1));
+    visit[i] = {key, uint32_t(i)};
+  }
+  std::sort(visit.begin(), visit.end());
+  const Surfel* previous = nullptr;
+  for (const auto& [cell, index] : visit) {
+    const size_t i = index;
     const float* q = xyz + 3 * i;
     size_t m = 0;
     for (const PartPtr& p : parts) {
@@ -280,6 +295,10 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
               [](const auto& a, const auto& b) { return a.first < b.first; });
     float best = max_distance_m;
     const Surfel* nearest = nullptr;
+    if (previous) {
+      const float d = DiskDistance(*previous, q, radius_);
+      if (d < best) best = d, nearest = previous;
+    }
     // Disks within kBlend of the nearest, over every part searched.
     std::array<std::pair<float, const Surfel*>, 2 * NearestDisk::kKeep> near;
     int kept = 0;
@@ -296,6 +315,7 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
       for (int j = 0; j < search.kept && kept < int(near.size()); ++j)
         near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second]};
     }
+    previous = nearest;
     float* g = gradient ? gradient + 3 * i : nullptr;
     if (!nearest) {
       sdf[i] = max_distance_m;
