@@ -31,6 +31,7 @@ const Histogram::BucketBoundaries kStageBuckets{0.0005, 0.001, 0.003, 0.01, 0.03
 const Histogram::BucketBoundaries kQueryBuckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025,
                                                 0.05,   0.1,   0.25,   0.5,   1,    2.5};
 const Histogram::BucketBoundaries kMeshBuckets{0.005, 0.01, 0.03, 0.1, 0.3, 1, 3, 10};
+const Histogram::BucketBoundaries kPushDelayBuckets{0.1, 0.25, 0.5, 1, 1.5, 2, 3, 5, 10, 30};
 const Histogram::BucketBoundaries kCheckpointBuckets{0.01, 0.03, 0.1, 0.3, 1, 3, 10, 30, 100};
 const Histogram::BucketBoundaries kWalBuckets{0.0001, 0.0003, 0.001, 0.003, 0.01, 0.03, 0.1, 0.3};
 const Histogram::BucketBoundaries kRpcBuckets{0.001, 0.005, 0.01, 0.05, 0.1, 0.5,
@@ -119,6 +120,16 @@ struct ServerMetrics::Families {
                     .Name("rim_meshing_seconds")
                     .Help("Meshing plus Draco encoding of one tile")
                     .Register(r)),
+        blocks_remeshed(prometheus::BuildCounter()
+                            .Name("rim_mesh_blocks_remeshed_total")
+                            .Help("Mesh blocks meshed anew for tile encodings (the others were "
+                                  "reused from the mesh block cache)")
+                            .Register(r)),
+        push_delay(prometheus::BuildHistogram()
+                       .Name("rim_mesh_tile_push_delay_seconds")
+                       .Help("From the integration of the frame that made a tile version to "
+                             "its push to a watcher")
+                       .Register(r)),
         checkpoint(prometheus::BuildHistogram()
                        .Name("rim_checkpoint_seconds")
                        .Help("Time to write one checkpoint")
@@ -146,6 +157,8 @@ struct ServerMetrics::Families {
   prometheus::Family<prometheus::Counter>& tiles;
   prometheus::Family<prometheus::Counter>& tile_bytes;
   prometheus::Family<Histogram>& meshing;
+  prometheus::Family<prometheus::Counter>& blocks_remeshed;
+  prometheus::Family<Histogram>& push_delay;
   prometheus::Family<Histogram>& checkpoint;
   prometheus::Family<Histogram>& wal;
   prometheus::Family<prometheus::Counter>& requests;
@@ -350,10 +363,16 @@ void ServerMetrics::CheckpointWritten(const std::string& robot, double seconds, 
   families_->checkpoint.Add({{"session", robot}}, kCheckpointBuckets).Observe(seconds);
 }
 
-void ServerMetrics::TileEncoded(const std::string& robot, size_t bytes, double seconds) {
+void ServerMetrics::TileEncoded(const std::string& robot, size_t bytes, double seconds,
+                                int blocks_remeshed) {
   families_->tiles.Add({{"session", robot}}).Increment();
+  families_->blocks_remeshed.Add({{"session", robot}}).Increment(double(blocks_remeshed));
   families_->tile_bytes.Add({{"session", robot}}).Increment(double(bytes));
   families_->meshing.Add({{"session", robot}}, kMeshBuckets).Observe(seconds);
+}
+
+void ServerMetrics::TilePushed(const std::string& robot, double delay_seconds) {
+  families_->push_delay.Add({{"session", robot}}, kPushDelayBuckets).Observe(delay_seconds);
 }
 
 void ServerMetrics::QueryAnswered(const std::string& robot, size_t points, double seconds) {

@@ -52,7 +52,9 @@ class ServerMetrics : public SessionEvents {
   void FrameFailed(const std::string& robot) override;
   void WalAppended(const std::string& robot, double seconds) override;
   void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) override;
-  void TileEncoded(const std::string& robot, size_t bytes, double seconds) override;
+  void TileEncoded(const std::string& robot, size_t bytes, double seconds,
+                   int blocks_remeshed) override;
+  void TilePushed(const std::string& robot, double delay_seconds) override;
   void QueryAnswered(const std::string& robot, size_t points, double seconds) override;
 
   // Called by the interceptor when an RPC ends; `method` is the full gRPC method path.

@@ -1,21 +1,24 @@
 // WatchMeshTiles: pushes tiles as training changes them, until the client cancels or the session
-// closes. A watcher thread (one per watch; dashboards are few) waits for integrated frames, lists
-// the tiles newer than the last version it sent, encodes them through the session's tile cache and
-// queues them; the reactor writes the queue one message at a time. The queue is bounded: a slow
-// dashboard holds the watcher back instead of growing memory.
+// closes. A watcher thread (one per watch; dashboards are few) works in rounds: it lists the tiles
+// newer than the last round's, meshes and encodes them through the session's tile cache (only
+// their changed blocks are re-meshed) and queues them; the reactor writes the queue one message at
+// a time. Rounds start at most once per watch.min_interval_s, when a frame was integrated since
+// the last one, so a tile is pushed at most once per interval, at its newest version. The queue
+// holds at most one message per tile: a slow dashboard gets the newest version of each tile when
+// it catches up, and memory stays bounded by the tile count.
+#include <chrono>
 #include <condition_variable>
-#include <deque>
 #include <memory>
 #include <mutex>
 #include <thread>
 
+#include "server/latest_queue.h"
 #include "server/service.h"
 #include "server/status_mapping.h"
 
 namespace rim::server {
 namespace {
 
-constexpr size_t kMaxQueuedTiles = 16;
 constexpr auto kPollInterval = std::chrono::milliseconds(500);
 
 class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
@@ -55,37 +58,55 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   }
 
  private:
+  // One round: every tile newer than `*listed_version`, at its newest version. Returns false when
+  // the watch ended.
+  bool PushRound(uint64_t* listed_version) {
+    uint64_t newest = *listed_version;
+    for (const TileInfo& tile : session_->mapper().ListTiles(*listed_version)) {
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        if (stop_) return false;
+      }
+      auto encoded = session_->tiles().Get(session_->mapper(), tile);
+      std::lock_guard<std::mutex> lock(mu_);
+      if (stop_) return false;
+      if (!encoded.ok()) {
+        stop_ = true;
+        FinishLocked(ToGrpcStatus(encoded.status()));
+        return false;
+      }
+      // Tiles that change after the listing get versions above every listed one.
+      newest = std::max(newest, tile.version);
+      pending_.Put(tile.key, ToMessage(tile, **encoded));
+      WriteNextLocked();
+    }
+    *listed_version = newest;
+    return true;
+  }
+
   void Watch() {
-    uint64_t sent_version = since_version_;
+    const auto interval = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+        std::chrono::duration<double>(session_->mapper().config().watch.min_interval_s));
+    uint64_t listed_version = since_version_;
     uint64_t seen_frames = 0;
     while (true) {
+      const auto round_start = std::chrono::steady_clock::now();
+      if (!PushRound(&listed_version)) return;
       {
+        // Coalescing: the next round no sooner than an interval after this one.
         std::unique_lock<std::mutex> lock(mu_);
-        cv_.wait(lock, [this] { return stop_ || queue_.size() < kMaxQueuedTiles; });
+        cv_.wait_until(lock, round_start + interval, [this] { return stop_; });
         if (stop_) return;
       }
-      uint64_t newest = sent_version;
-      for (const TileInfo& tile : session_->mapper().ListTiles(sent_version)) {
-        auto encoded = session_->tiles().Get(session_->mapper(), tile);
-        std::lock_guard<std::mutex> lock(mu_);
-        if (stop_) return;
-        if (!encoded.ok()) {
-          stop_ = true;
-          FinishLocked(ToGrpcStatus(encoded.status()));
-          return;
-        }
-        queue_.push_back(ToMessage(tile, **encoded));
-        newest = std::max(newest, (*encoded)->version);
-        WriteNextLocked();
-      }
-      sent_version = newest;
       bool closed = false;
       seen_frames = session_->WaitForIntegrated(seen_frames, kPollInterval, &closed);
       if (closed) {
+        // The session closed: push what its last frames changed, then end the stream.
+        if (!PushRound(&listed_version)) return;
         std::unique_lock<std::mutex> lock(mu_);
-        cv_.wait(lock, [this] { return stop_ || (queue_.empty() && !writing_); });
+        cv_.wait(lock, [this] { return stop_ || (pending_.empty() && !writing_); });
         stop_ = true;
-        FinishLocked(grpc::Status::OK);  // the session closed: nothing more will change
+        FinishLocked(grpc::Status::OK);  // nothing more will change
         return;
       }
     }
@@ -112,10 +133,10 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
 
   // Caller holds mu_.
   void WriteNextLocked() {
-    if (writing_ || finished_ || queue_.empty()) return;
-    current_ = std::move(queue_.front());
-    queue_.pop_front();
+    if (writing_ || finished_ || pending_.empty()) return;
+    current_ = std::move(*pending_.Pop());
     writing_ = true;
+    session_->RecordTilePush(current_.version());
     StartWrite(&current_);
     cv_.notify_all();
   }
@@ -130,7 +151,8 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   const uint64_t since_version_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<rim::v1::MeshTile> queue_;
+  // At most one message per tile: a newer version replaces a queued older one.
+  LatestPerKeyQueue<Int3, rim::v1::MeshTile, Int3Hash, Int3Equal> pending_;
   rim::v1::MeshTile current_;
   bool writing_ = false, stop_ = false, finished_ = false;
   std::thread watcher_;

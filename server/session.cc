@@ -59,8 +59,8 @@ Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
       mapper_(std::move(mapper)),
       options_(options),
       wal_(std::move(wal)),
-      tiles_([events = options.events, robot_id](size_t bytes, double seconds) {
-        if (events) events->TileEncoded(robot_id, bytes, seconds);
+      tiles_([events = options.events, robot_id](size_t bytes, double seconds, int blocks) {
+        if (events) events->TileEncoded(robot_id, bytes, seconds, blocks);
       }) {
   next_index_ = uint64_t(mapper_->frames());
   if (wal_) next_index_ = std::max(next_index_, wal_->next_index());
@@ -177,6 +177,21 @@ void Session::RecordQuery(size_t points, double seconds) {
   if (options_.events) options_.events->QueryAnswered(robot_id_, points, seconds);
 }
 
+double Session::IntegratedAt(uint64_t map_version) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = std::lower_bound(
+      integrated_at_.begin(), integrated_at_.end(), map_version,
+      [](const std::pair<uint64_t, double>& e, uint64_t v) { return e.first < v; });
+  if (it == integrated_at_.end()) return -1;
+  return it->second;
+}
+
+void Session::RecordTilePush(uint64_t tile_version) {
+  if (!options_.events) return;
+  const double at = IntegratedAt(tile_version);
+  if (at >= 0) options_.events->TilePushed(robot_id_, std::max(0.0, SteadySeconds() - at));
+}
+
 void Session::Run() {
   std::unique_lock<std::mutex> lock(mu_);
   while (true) {
@@ -232,6 +247,8 @@ void Session::Run() {
     if (!status.ok()) ++stats_.failed;
     if (status.ok()) {
       ++stats_.integrated;
+      integrated_at_.emplace_back(mapper_->map_version(), SteadySeconds());
+      if (integrated_at_.size() > 1024) integrated_at_.pop_front();
       stats_.last_loss = timing.loss;
       stats_.last_timing = timing;
     }

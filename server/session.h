@@ -107,6 +107,13 @@ class Session {
   void CountRejected(absl::StatusCode code);
   // Reports an answered query batch to the metrics.
   void RecordQuery(size_t points, double seconds);
+  // When (steady clock seconds) the first frame that brought the map to `map_version` or beyond
+  // was integrated: a tile's version is the map version of the frame that last changed it. The
+  // session remembers its last 1024 frames; older versions give the oldest it remembers, and a
+  // version no frame of this process made (a loaded session's) gives -1.
+  double IntegratedAt(uint64_t map_version) const;
+  // Reports a tile pushed to a watcher (metrics: delay since its frame was integrated).
+  void RecordTilePush(uint64_t tile_version);
 
  private:
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
@@ -132,6 +139,8 @@ class Session {
   bool closing_ = false;
   std::vector<std::function<void()>> space_waiters_;
   SessionStats stats_;
+  // (map version after the frame, steady seconds when it was integrated), oldest first.
+  std::deque<std::pair<uint64_t, double>> integrated_at_;
   absl::Status last_checkpoint_;
   // Trainer thread only: when the distance field's last refresh ended and how long it took
   // (steady clock seconds), to keep refreshes between frames to a share of the session's time.

@@ -22,8 +22,12 @@ class SessionEvents {
   virtual void FrameFailed(const std::string& robot) {}
   virtual void WalAppended(const std::string& robot, double seconds) {}
   virtual void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) {}
-  // A tile was meshed and Draco-encoded (cache misses only).
-  virtual void TileEncoded(const std::string& robot, size_t bytes, double seconds) {}
+  // A tile was meshed and Draco-encoded (cache misses only); `blocks_remeshed` of its mesh blocks
+  // were meshed anew, the others came from the mesh block cache.
+  virtual void TileEncoded(const std::string& robot, size_t bytes, double seconds,
+                           int blocks_remeshed) {}
+  // A watcher pushed a tile `delay_seconds` after the frame that made its version was integrated.
+  virtual void TilePushed(const std::string& robot, double delay_seconds) {}
   virtual void QueryAnswered(const std::string& robot, size_t points, double seconds) {}
 };
 

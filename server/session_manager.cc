@@ -30,9 +30,9 @@ uint64_t SessionHostBytes(const Session& session) {
   const MapperStats stats = session.mapper().Stats();
   // Each buffered point keeps its endpoint and its ray origin; the deferred rays (seen outside the
   // box, waiting for it) are counted by their tables' capacity, the distance field by its surfels
-  // and their k-d trees.
+  // and their k-d trees, the mesh blocks cached for its dashboards by their arrays.
   return uint64_t(stats.local_map_bytes + stats.submap_bytes + stats.deferred_bytes +
-                  stats.distance_bytes) +
+                  stats.distance_bytes + stats.mesh_cache_bytes) +
          uint64_t(stats.buffer_points) * 2 * sizeof(Vec3f);
 }
 

@@ -4,6 +4,7 @@
 #include <chrono>
 
 #include "absl/strings/str_cat.h"
+#include "rim/mesh/mesher.h"
 #include "server/mesh_codec.h"
 
 namespace rim::server {
@@ -21,7 +22,8 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   }
   // Meshing runs outside the cache lock: other tiles (and other callers) are not held up.
   const auto start = std::chrono::steady_clock::now();
-  auto mesh = mapper.ExtractMeshTile(tile.key);
+  MeshUpdateStats stats;
+  auto mesh = mapper.MeshTile(tile.key, &stats);
   if (!mesh.ok()) return mesh.status();
   const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
   const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
@@ -36,7 +38,8 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   encoded->face_count = uint32_t(mesh->faces.size());
   if (on_encoded_)
     on_encoded_(encoded->draco.size(),
-                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+                stats.blocks_remeshed);
   std::lock_guard<std::mutex> lock(mu_);
   auto& slot = tiles_[tile.key];
   if (!slot || slot->version <= encoded->version) slot = encoded;

@@ -24,13 +24,15 @@ struct EncodedTile {
 
 class TileCache {
  public:
-  // `on_encoded(bytes, seconds)` runs after each tile meshed and encoded (not for cache hits).
-  explicit TileCache(std::function<void(size_t, double)> on_encoded = nullptr)
-      : on_encoded_(std::move(on_encoded)) {}
+  // `on_encoded(bytes, seconds, blocks_remeshed)` runs after each tile meshed and encoded (not for
+  // cache hits).
+  using EncodedFn = std::function<void(size_t, double, int)>;
+  explicit TileCache(EncodedFn on_encoded = nullptr) : on_encoded_(std::move(on_encoded)) {}
 
   // The tile at `tile.version` or newer: from the cache when its encoding is that recent,
-  // otherwise meshed and encoded now (a tile that changes while being meshed is tagged with the
-  // version read before, so it is simply re-encoded next time).
+  // otherwise meshed (Mapper::MeshTile: only its changed blocks) and encoded now. A tile that
+  // changes while being meshed is tagged with the version read before, so it is simply
+  // re-encoded next time.
   absl::StatusOr<std::shared_ptr<const EncodedTile>> Get(const Mapper& mapper,
                                                          const TileInfo& tile);
 
@@ -38,7 +40,7 @@ class TileCache {
   uint64_t misses() const;
 
  private:
-  const std::function<void(size_t, double)> on_encoded_;
+  const EncodedFn on_encoded_;
   mutable std::mutex mu_;
   std::unordered_map<Int3, std::shared_ptr<const EncodedTile>, Int3Hash, Int3Equal> tiles_;
   uint64_t hits_ = 0, misses_ = 0;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -51,6 +52,8 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   outside_ = std::make_unique<OutsideRaysHolder>();
   distance_ = std::make_unique<DistanceField>(
       *geometry_, float(config.query.surfel_radius_voxels * geometry_->leaf_m()));
+  mesh_changes_ = std::make_unique<MeshChangeLog>();
+  mesh_cache_ = std::make_unique<MeshBlockCache>();
 }
 
 Mapper::~Mapper() = default;
@@ -169,9 +172,11 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   RIM_RETURN_IF_ERROR(ValidateScan(scan));
   StageTimings t;
   const double start = Now();
+  std::optional<IntBox> old_box;  // the box before this frame's slide (its leaving slabs change)
   {
     std::unique_lock<std::shared_mutex> lock(mu_);
     const double t0 = Now();
+    if (local_map_->placed()) old_box = local_map_->LatticeBox(0);
     const bool moved = SlideTo(scan.T_world_sensor.translation());
     const double t1 = Now();
     Preprocess(scan, moved);
@@ -194,7 +199,13 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   {
     std::unique_lock<std::shared_mutex> lock(mu_);
     ++frames_;
-    BumpVersions(train_decoder && n_iter > 0);
+    BumpVersions(train_decoder && n_iter > 0, old_box ? &*old_box : nullptr);
+    // What this frame changed, for the mesh block cache: the box's rows and flags, and the slabs
+    // that left it (stored in 8-bit rows, which moves their values); everything while the decoder
+    // trains.
+    std::vector<IntBox> changed{local_map_->LatticeBox(0)};
+    if (old_box) changed.push_back(*old_box);
+    mesh_changes_->Record(changed, train_decoder && n_iter > 0);
     if (train_decoder && n_iter > 0) distance_all_stale_ = true;
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
@@ -217,16 +228,21 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   return absl::OkStatus();
 }
 
-void Mapper::BumpVersions(bool decoder_changed) {
+void Mapper::BumpVersions(bool decoder_changed, const IntBox* old_box) {
   const uint64_t v = map_version_.load();
   // The decoder is shared by every tile: while it trains, every tile changes.
   if (decoder_changed) store_->SetAllVersions(v);
-  const IntBox box = local_map_->LatticeBox(0);
-  const Int3 lo = geometry_->SubmapOfLattice(0, box.lo);
-  const Int3 hi = geometry_->SubmapOfLattice(0, box.hi - Int3::Ones());
-  for (int x = lo.x(); x <= hi.x(); ++x)
-    for (int y = lo.y(); y <= hi.y(); ++y)
-      for (int z = lo.z(); z <= hi.z(); ++z) store_->SetVersion(Int3(x, y, z), v);
+  // The tiles of the box, and of the box before the slide: the slabs that left it went to the
+  // store in 8-bit rows, which moves their values a little.
+  auto bump = [&](const IntBox& box) {
+    const Int3 lo = geometry_->SubmapOfLattice(0, box.lo);
+    const Int3 hi = geometry_->SubmapOfLattice(0, box.hi - Int3::Ones());
+    for (int x = lo.x(); x <= hi.x(); ++x)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int z = lo.z(); z <= hi.z(); ++z) store_->SetVersion(Int3(x, y, z), v);
+  };
+  bump(local_map_->LatticeBox(0));
+  if (old_box && (old_box->lo != local_map_->LatticeBox(0).lo)) bump(*old_box);
 }
 
 namespace {
@@ -507,6 +523,26 @@ absl::StatusOr<Mesh> Mapper::ExtractMeshTile(const Int3& key) const {
   return ExtractTile(src, config_.mesh.resolution_m, key);
 }
 
+absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) const {
+  saver_->Flush();
+  bool keep = false;
+  {
+    // Blocks are kept for the tiles that the box can still change: within a block and a coarse
+    // voxel of it.
+    std::shared_lock<std::shared_mutex> lock(mu_);
+    if (local_map_->placed()) {
+      const Int3 cells = geometry_->cells(0);
+      const int margin = kMeshBlockVoxels + (1 << (geometry_->levels() - 1)) + 1;
+      const IntBox box = local_map_->LatticeBox(0);
+      const Int3 lo = key.cwiseProduct(cells) - Int3::Constant(margin);
+      const Int3 hi = key.cwiseProduct(cells) + cells + Int3::Constant(margin);
+      keep = (lo.array() <= box.hi.array()).all() && (box.lo.array() <= hi.array()).all();
+    }
+  }
+  MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
+  return mesh_cache_->Update(src, config_.mesh.resolution_m, key, *mesh_changes_, keep, stats);
+}
+
 std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
   std::shared_lock<std::shared_mutex> lock(mu_);
   saver_->Flush();  // under the lock, as in QuerySdf
@@ -526,6 +562,7 @@ MapperStats Mapper::Stats() const {
   const DistanceFieldStats distance = distance_->Stats();
   s.distance_surfels = distance.surfels;
   s.distance_bytes = distance.bytes;
+  s.mesh_cache_bytes = mesh_cache_->MemoryBytes();
   const SubmapStoreStats st = store_->Stats();
   s.submap_bytes = st.host_bytes;
   s.submaps_active = st.active;

@@ -32,6 +32,9 @@ class SlabSaver;
 class SubmapStore;
 class Trainer;
 class MapGeometry;
+class MeshBlockCache;
+class MeshChangeLog;
+struct MeshUpdateStats;
 
 // Per-frame stage times (§3.4 step 4), seconds; training stages are summed over iterations.
 struct StageTimings {
@@ -91,6 +94,7 @@ struct MapperStats {
   int64_t local_map_bytes = 0;
   int64_t distance_surfels = 0;  // the metric distance field (map/distance_field.h)
   int64_t distance_bytes = 0;
+  int64_t mesh_cache_bytes = 0;  // cached mesh blocks (MeshTile)
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
   bool decoder_frozen = false;
@@ -142,6 +146,11 @@ class Mapper {
   std::vector<TileInfo> ListTiles(uint64_t since_version) const;
   // Marching cubes over one sub-map's observed voxels; neighbouring tiles share border vertices.
   absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key) const;
+  // The same mesh (same vertices and faces, possibly in another order), re-meshing only the
+  // blocks that changed since this tile was last meshed here: blocks are cached for the tiles
+  // near the box (mesh/mesher.h, MeshBlockCache). While the decoder trains, every block changes
+  // with every frame.
+  absl::StatusOr<Mesh> MeshTile(const Int3& key, MeshUpdateStats* stats = nullptr) const;
 
   // Observed finest voxels of one sub-map (minimum-corner lattice indices): what its tile meshes.
   std::vector<Int3> ObservedVoxels(const Int3& key) const;
@@ -167,7 +176,7 @@ class Mapper {
   // Returns true when the box was placed or moved.
   bool SlideTo(const Vec3d& position_W);
   void Preprocess(const PosedScan& scan, bool box_moved);
-  void BumpVersions(bool decoder_changed);
+  void BumpVersions(bool decoder_changed, const IntBox* old_box);
   absl::Status SaveState(const std::string& path) const;
   absl::Status LoadState(const std::string& path, uint32_t* version);
   absl::Status SaveDeferred(const std::string& path) const;
@@ -189,6 +198,9 @@ class Mapper {
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
   std::unique_ptr<DistanceField> distance_;
+  // What each frame changed, and the mesh blocks of the tiles near the box (MeshTile).
+  std::unique_ptr<MeshChangeLog> mesh_changes_;
+  std::unique_ptr<MeshBlockCache> mesh_cache_;
   // Refresh state (training thread only): the widened box of the last refresh, the frame count
   // then, and whether the decoder changed since (which moves every surfel).
   std::unique_ptr<IntBox> distance_box_;

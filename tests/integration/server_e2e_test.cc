@@ -10,6 +10,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -499,6 +500,128 @@ TEST_F(ServerE2eTest, TwoRobotsStreamAtOnce) {
     EXPECT_GT(observed, int(face.size()) / 2) << robots[r];
     EXPECT_GT(close, observed * 7 / 10) << robots[r];
   }
+}
+
+// A dashboard watching a session: what it receives of each tile, in arrival order.
+struct WatchLog {
+  std::map<std::array<int, 3>, std::vector<uint64_t>> versions;
+  grpc::Status status;
+};
+
+// Watches `robot` from version 0 until the stream ends; sleeps `stall` before its first read, as
+// a dashboard that fell behind.
+WatchLog WatchUntilEnd(const std::string& robot, std::chrono::milliseconds stall) {
+  WatchLog log;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+  rim::v1::WatchMeshTilesRequest watch;
+  watch.set_robot_id(robot);
+  auto reader = g_stub->WatchMeshTiles(&ctx, watch);
+  std::this_thread::sleep_for(stall);
+  rim::v1::MeshTile tile;
+  while (reader->Read(&tile))
+    log.versions[{tile.key_x(), tile.key_y(), tile.key_z()}].push_back(tile.version());
+  log.status = reader->Finish();
+  return log;
+}
+
+TEST_F(ServerE2eTest, WatchersGetCoalescedPushesOfTheNewestVersions) {
+  // A bad interval is refused by name.
+  {
+    rim::v1::CreateSessionRequest bad = SmallSessionRequest("robot_badwatch", 5);
+    auto* o = bad.add_overrides();
+    o->set_key("watch.min_interval_s");
+    o->set_value("-1");
+    grpc::ClientContext ctx;
+    rim::v1::SessionInfo info;
+    const grpc::Status s = g_stub->CreateSession(&ctx, bad, &info);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("watch.min_interval_s"), std::string::npos)
+        << s.error_message();
+  }
+  // Two sessions streamed alike: one pushes at most every 3 s, the other after every frame.
+  const std::vector<std::pair<std::string, const char*>> robots = {{"robot_coalesced", "3"},
+                                                                   {"robot_every_frame", "0"}};
+  std::vector<WatchLog> logs(robots.size());
+  std::vector<std::map<std::array<int, 3>, uint64_t>> final_versions(robots.size());
+  std::vector<double> watched_s(robots.size());
+  for (size_t r = 0; r < robots.size(); ++r) {
+    const std::string& robot = robots[r].first;
+    rim::v1::CreateSessionRequest request = SmallSessionRequest(robot, 5);
+    auto* o = request.add_overrides();
+    o->set_key("watch.min_interval_s");
+    o->set_value(robots[r].second);
+    {
+      grpc::ClientContext ctx;
+      rim::v1::SessionInfo info;
+      ASSERT_TRUE(g_stub->CreateSession(&ctx, request, &info).ok());
+    }
+    const auto start = std::chrono::steady_clock::now();
+    // The every-frame watcher also stalls for a second: it must still end with each tile's
+    // newest version, never an older one after a newer.
+    std::thread watcher([&, r, robot] {
+      logs[r] = WatchUntilEnd(robot, std::chrono::milliseconds(r == 1 ? 1000 : 0));
+    });
+    {
+      const AnalyticScene scene = Scene();
+      const LidarModel lidar = TestLidar();
+      const auto poses = Poses();
+      grpc::ClientContext ctx;
+      auto stream = g_stub->StreamScans(&ctx);
+      for (int i = 0; i < kScans; ++i) {
+        rim::v1::Scan scan = MakeScan(
+            uint64_t(i), poses[i], testing_support::SimulateScan(scene, lidar, poses[i], 70 + i));
+        scan.set_robot_id(robot);
+        stream->Write(scan);
+      }
+      stream->WritesDone();
+      rim::v1::ScanAck ack;
+      int integrated = 0;
+      while (stream->Read(&ack)) integrated += ack.state() == rim::v1::ScanAck::INTEGRATED;
+      ASSERT_TRUE(stream->Finish().ok());
+      ASSERT_EQ(integrated, kScans);
+    }
+    {
+      rim::v1::GetMeshTilesRequest get;
+      get.set_robot_id(robot);
+      grpc::ClientContext ctx;
+      auto reader = g_stub->GetMeshTiles(&ctx, get);
+      rim::v1::MeshTile tile;
+      while (reader->Read(&tile))
+        final_versions[r][{tile.key_x(), tile.key_y(), tile.key_z()}] = tile.version();
+      ASSERT_TRUE(reader->Finish().ok());
+    }
+    // Closing the session ends the watch after a last round.
+    {
+      rim::v1::CloseSessionRequest close;
+      close.set_robot_id(robot);
+      rim::v1::CloseSessionResponse closed;
+      grpc::ClientContext ctx;
+      ASSERT_TRUE(g_stub->CloseSession(&ctx, close, &closed).ok());
+    }
+    watcher.join();
+    watched_s[r] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  int pushes[2] = {0, 0};
+  for (size_t r = 0; r < robots.size(); ++r) {
+    const WatchLog& log = logs[r];
+    EXPECT_TRUE(log.status.ok()) << robots[r].first << ": " << log.status.error_message();
+    ASSERT_FALSE(final_versions[r].empty());
+    for (const auto& [key, final_version] : final_versions[r]) {
+      auto it = log.versions.find(key);
+      ASSERT_NE(it, log.versions.end()) << robots[r].first << ": a tile never pushed";
+      const std::vector<uint64_t>& v = it->second;
+      for (size_t i = 1; i < v.size(); ++i)
+        EXPECT_LT(v[i - 1], v[i]) << robots[r].first << ": an older version after a newer";
+      EXPECT_EQ(v.back(), final_version) << robots[r].first << ": not the newest version";
+      pushes[r] = std::max(pushes[r], int(v.size()));
+    }
+  }
+  std::printf("most pushes of one tile: %d in %.1f s at a 3 s interval, %d in %.1f s at 0 s\n",
+              pushes[0], watched_s[0], pushes[1], watched_s[1]);
+  // At most one push per tile per interval (plus the first round and the closing one).
+  EXPECT_LE(pushes[0], 2 + int(watched_s[0] / 3.0));
+  EXPECT_LT(pushes[0], kScans / 2);
 }
 
 TEST_F(ServerE2eTest, SigtermExitsZero) {

@@ -52,7 +52,8 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
   t.backward_s = 0.2;
   m.FrameIntegrated("r1", t);
   m.QueryAnswered("r2", 1000, 0.002);
-  m.TileEncoded("r1", 4096, 0.05);
+  m.TileEncoded("r1", 4096, 0.05, 7);
+  m.TilePushed("r1", 1.2);
   m.CheckpointWritten("r1", 0.3, 1 << 20);
   m.WalAppended("r1", 0.001);
   m.RpcFinished("/rim.v1.Rim/QuerySdf", 5, 0.01);
@@ -73,6 +74,9 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
               HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"other\"} 0.2"));
   EXPECT_THAT(text, HasSubstr("rim_query_points_total{session=\"r2\"} 1000"));
   EXPECT_THAT(text, HasSubstr("rim_mesh_tile_bytes_total{session=\"r1\"} 4096"));
+  EXPECT_THAT(text, HasSubstr("rim_mesh_blocks_remeshed_total{session=\"r1\"} 7"));
+  EXPECT_THAT(text, HasSubstr("rim_mesh_tile_push_delay_seconds_count{session=\"r1\"} 1"));
+  EXPECT_THAT(text, HasSubstr("rim_mesh_tile_push_delay_seconds_sum{session=\"r1\"} 1.2"));
   EXPECT_THAT(text, HasSubstr("rim_checkpoint_seconds_count{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_wal_append_seconds_count{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_grpc_requests_total{code=\"NOT_FOUND\",method=\"QuerySdf\"} 1"));

@@ -8,6 +8,7 @@
 #include <thread>
 #include <vector>
 
+#include "server/latest_queue.h"
 #include "server/session.h"
 #include "server/session_manager.h"
 #include "server/tile_cache.h"
@@ -192,6 +193,20 @@ TEST(TileCacheTest, ReencodesOnlyWhenTheVersionMoves) {
   EXPECT_NE(newer->get(), first->get());
   EXPECT_EQ((*newer)->version, moved.version);
   EXPECT_EQ(cache.misses(), 2u);
+}
+
+TEST(LatestPerKeyQueueTest, HoldsOneValuePerKeyTheNewestInFirstComeOrder) {
+  LatestPerKeyQueue<Int3, int, Int3Hash, Int3Equal> q;
+  const Int3 a(0, 0, 0), b(1, 0, 0);
+  EXPECT_FALSE(q.Put(a, 1));
+  EXPECT_FALSE(q.Put(b, 2));
+  // A slow reader: many newer versions of both keys arrive before it reads.
+  for (int v = 3; v < 1000; ++v) EXPECT_TRUE(q.Put(v % 2 ? a : b, v));
+  EXPECT_EQ(q.size(), 2u);
+  EXPECT_EQ(q.Pop(), 999);  // a kept its place, with its newest value
+  EXPECT_EQ(q.Pop(), 998);
+  EXPECT_TRUE(q.empty());
+  EXPECT_EQ(q.Pop(), std::nullopt);
 }
 
 TEST(SessionTest, PeriodicCheckpointsKeepTheLogShort) {

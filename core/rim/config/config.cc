@@ -70,6 +70,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("query.max_distance_m", c.query.max_distance_m);
   v("query.refresh_frames", c.query.refresh_frames);
   v("query.surfel_radius_voxels", c.query.surfel_radius_voxels);
+  v("watch.min_interval_s", c.watch.min_interval_s);
 }
 
 bool Parse(const std::string& s, std::string* out) {
@@ -203,6 +204,8 @@ absl::Status MapperConfig::Validate() const {
     return Bad("query.refresh_frames", "must be in [1, 10000]");
   if (!(query.surfel_radius_voxels >= 0.5f && query.surfel_radius_voxels <= 2.f))
     return Bad("query.surfel_radius_voxels", "must be in [0.5, 2]");
+  if (!(watch.min_interval_s >= 0.f && watch.min_interval_s <= 3600.f))
+    return Bad("watch.min_interval_s", "must be in [0, 3600] s");
   // Surfels name their finest voxel in 31 bits (the top bit marks fresh ones while fitting).
   if (voxels_per_submap(g.leaf_size_m) > 2e9)
     return Bad("grid.leaf_size_m", "gives more than 2e9 voxels per sub-map");

@@ -114,6 +114,12 @@ struct MeshConfig {
   float resolution_m = 0.05f;  // must divide the leaf size
 };
 
+// Mesh tile pushes to dashboards (the service's WatchMeshTiles): each tile is pushed at most once
+// per interval, its latest version; 0 pushes after every frame that changed it.
+struct WatchConfig {
+  float min_interval_s = 1.f;
+};
+
 struct MapperConfig {
   std::string preset = "maicity";
   GridConfig grid;
@@ -125,6 +131,7 @@ struct MapperConfig {
   SubmapConfig submap;
   MeshConfig mesh;
   QueryConfig query;
+  WatchConfig watch;
 
   // Checks every value; the error names the bad field (e.g. "grid.leaf_size_m must be > 0").
   absl::Status Validate() const;

@@ -150,18 +150,6 @@ const CaseTable& GetCaseTable() {
 
 Int3 CornerOffset(int corner) { return Int3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1); }
 
-struct EdgeKey {
-  Int3 lower;
-  int axis;
-  bool operator==(const EdgeKey& o) const { return axis == o.axis && lower == o.lower; }
-};
-
-struct EdgeKeyHash {
-  size_t operator()(const EdgeKey& k) const {
-    return Int3Hash()(k.lower) ^ (static_cast<size_t>(k.axis) * 0x9E3779B97F4A7C15ull);
-  }
-};
-
 struct Sample {
   float value = 0.0f;
   bool valid = false;
@@ -174,12 +162,18 @@ int MarchingCubesTriangleCount(uint8_t case_mask) {
 }
 
 Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
+  return MarchingCubes(cells, samples, nullptr);
+}
+
+Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges) {
   Mesh mesh;
+  if (vertex_edges) vertex_edges->clear();
   if (!samples.lookup) return mesh;
   const CaseTable& table = GetCaseTable();
 
   absl::flat_hash_map<Int3, Sample, Int3Hash, Int3Equal> cache;
-  absl::flat_hash_map<EdgeKey, uint32_t, EdgeKeyHash> edge_vertex;
+  absl::flat_hash_map<GridEdge, uint32_t, GridEdgeHash> edge_vertex;
   absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_cells;
   cache.reserve(cells.size() * 2);
   done_cells.reserve(cells.size());
@@ -217,7 +211,7 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
         const int e = table.triangles[mask][t][k];
         const int lo = table.edge_lower_corner[e];
         const int axis = table.edge_axis[e];
-        const EdgeKey key{cell + CornerOffset(lo), axis};
+        const GridEdge key{cell + CornerOffset(lo), axis};
         auto [it, inserted] =
             edge_vertex.try_emplace(key, static_cast<uint32_t>(mesh.vertices.size()));
         if (inserted) {
@@ -233,6 +227,7 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
             p[i] = samples.origin_m[i] + samples.step_m * coord;
           }
           mesh.vertices.push_back(p);
+          if (vertex_edges) vertex_edges->push_back(key);
         }
         face[k] = it->second;
       }

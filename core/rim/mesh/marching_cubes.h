@@ -43,6 +43,23 @@ struct GridSamples {
 // call.
 Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples);
 
+// A grid edge: from grid point `lower` one step along `axis` (0 x, 1 y, 2 z).
+struct GridEdge {
+  Int3 lower = Int3::Zero();
+  int axis = 0;
+  bool operator==(const GridEdge& o) const { return axis == o.axis && lower == o.lower; }
+};
+struct GridEdgeHash {
+  size_t operator()(const GridEdge& e) const {
+    return Int3Hash()(e.lower) ^ (static_cast<size_t>(e.axis) * 0x9E3779B97F4A7C15ull);
+  }
+};
+
+// The same, also giving each vertex's grid edge (vertex_edges[i] for mesh.vertices[i]), so that
+// meshes of disjoint cell sets can be welded afterwards exactly as one call would have welded them.
+Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges);
+
 // Number of triangles the generated case table gives for a corner sign mask (bit i set = corner i
 // negative, corner numbering as above). Exposed for tests.
 int MarchingCubesTriangleCount(uint8_t case_mask);

@@ -1,17 +1,312 @@
 #include "rim/mesh/mesher.h"
 
+#include <algorithm>
 #include <cmath>
 #include <mutex>
 
-#include "absl/container/flat_hash_map.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/strings/str_cat.h"
-#include "rim/mesh/marching_cubes.h"
 #include "rim/model/encoder.h"
 
 namespace rim {
+
+// One block's share of a tile: the mesh of the cells whose minimum corner lies in the block.
+struct MeshBlockCache::Piece {
+  uint64_t stamp = 0;  // MeshChangeLog stamp taken before the block's map was read
+  std::vector<std::array<float, 3>> vertices;
+  std::vector<std::array<uint32_t, 3>> faces;
+  // Vertices on the block's faces, which cells of a neighbouring block can share, with their edges.
+  std::vector<std::pair<uint32_t, GridEdge>> shared;
+
+  int64_t Bytes() const {
+    return int64_t(sizeof(Piece) + vertices.capacity() * sizeof(vertices[0]) +
+                   faces.capacity() * sizeof(faces[0]) + shared.capacity() * sizeof(shared[0]));
+  }
+};
+
 namespace {
-constexpr size_t kChunkPoints = 32768;
+
+using Piece = MeshBlockCache::Piece;
+using VoxelSet = absl::flat_hash_set<Int3, Int3Hash, Int3Equal>;
+
+bool KeyLess(const Int3& a, const Int3& b) {
+  return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+}
+
+// A tile's observed voxels, and the same grouped by mesh block (blocks in key order).
+struct TileVoxels {
+  VoxelSet all;
+  std::vector<std::pair<Int3, std::vector<Int3>>> blocks;
+};
+
+TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
+  TileVoxels out;
+  absl::flat_hash_map<Int3, std::vector<Int3>, Int3Hash, Int3Equal> by_block;
+  std::shared_lock<std::shared_mutex> lock(src.mutex);
+  for (const Int3& g : ObservedVoxels(src, key)) {
+    out.all.insert(g);
+    by_block[FloorDiv(g, Int3::Constant(kMeshBlockVoxels))].push_back(g);
+  }
+  out.blocks.reserve(by_block.size());
+  for (auto& [block, voxels] : by_block) out.blocks.emplace_back(block, std::move(voxels));
+  std::sort(out.blocks.begin(), out.blocks.end(),
+            [](const auto& a, const auto& b) { return KeyLess(a.first, b.first); });
+  return out;
+}
+
+// The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
+// lies at m / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
+// and the remainder over a power of two times r. Each lattice row is fetched once per block (on
+// first use) instead of once per point and corner. The result is a function of the point alone,
+// so blocks and tiles that share a point compute the same bits for it.
+class GridEncoder {
+ public:
+  GridEncoder(const MapGeometry& geo, int r, const Int3& point0, int n, FeatureReader& reader)
+      : L_(geo.levels()), D_(geo.feature_dim()), point0_(point0), reader_(reader) {
+    for (int l = 0; l < L_; ++l) {
+      Level& lv = levels_[l];
+      lv.scale = r << l;
+      lv.lo = FloorDiv(point0, Int3::Constant(lv.scale));
+      const Int3 hi =
+          FloorDiv(point0 + Int3::Constant(n - 1), Int3::Constant(lv.scale)) + Int3::Ones();
+      lv.dims = hi - lv.lo + Int3::Ones();
+      const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
+      lv.rows.resize(count * D_);
+      lv.have.assign(count, 0);
+    }
+  }
+
+  // Features (L·D floats) at block-local grid point m.
+  void Encode(const Int3& m_local, float* out) {
+    const Int3 m = point0_ + m_local;
+    for (int l = 0; l < L_; ++l) {
+      Level& lv = levels_[l];
+      const Int3 base = FloorDiv(m, Int3::Constant(lv.scale));
+      const float inv = 1.f / float(lv.scale);
+      float f[3];
+      for (int a = 0; a < 3; ++a) f[a] = float(m[a] - base[a] * lv.scale) * inv;
+      float* o = out + size_t(l) * D_;
+      std::fill_n(o, D_, 0.f);
+      const Int3 b = base - lv.lo;
+      for (int c = 0; c < 8; ++c) {
+        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+        const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
+                    tz = cz ? f[2] : 1.f - f[2];
+        const float* row = Row(l, b + Int3(cx, cy, cz));
+        const float wc = tx * ty * tz;
+        for (int d = 0; d < D_; ++d) o[d] += wc * row[d];
+      }
+    }
+  }
+
+ private:
+  struct Level {
+    int scale = 1;  // grid points per voxel of the level
+    Int3 lo = Int3::Zero(), dims = Int3::Zero();
+    std::vector<float> rows;
+    std::vector<uint8_t> have;
+  };
+
+  const float* Row(int l, const Int3& g) {
+    Level& lv = levels_[l];
+    const size_t i = (size_t(g.x()) * lv.dims.y() + g.y()) * lv.dims.z() + g.z();
+    float* row = lv.rows.data() + i * D_;
+    if (!lv.have[i]) {
+      std::copy_n(reader_.Get(l, lv.lo + g), D_, row);
+      lv.have[i] = 1;
+    }
+    return row;
+  }
+
+  const int L_, D_;
+  const Int3 point0_;
+  FeatureReader& reader_;
+  Level levels_[kMaxLevels];
+};
+
+// Meshes one block: the cells of its observed voxels at r cells per voxel edge. Grid points and
+// voxels are indexed densely within the block. Caller holds the shared lock.
+std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, const Int3& block,
+                                 const std::vector<Int3>& voxels, const VoxelSet& tile_voxels,
+                                 FeatureReader& reader) {
+  constexpr int B = kMeshBlockVoxels;
+  const int n = B * r + 1;  // grid points per axis
+  const Int3 voxel0 = block * B;
+  const Int3 point0 = voxel0 * r;
+  auto piece = std::make_shared<Piece>();
+
+  // Whether voxel voxel0 + v (v in [-1, B] per axis) counts as observed: 0 unknown, 1 no, 2 yes.
+  // A grid point on a voxel face belongs to every voxel that shares it; it counts as observed if
+  // any of them is, so that meshes of neighbouring observed voxels join up.
+  constexpr int V = B + 2;
+  std::vector<uint8_t> voxel_state(size_t(V) * V * V, 0);
+  auto voxel_observed = [&](const Int3& v) {
+    uint8_t& s = voxel_state[(size_t(v.x() + 1) * V + (v.y() + 1)) * V + (v.z() + 1)];
+    if (s == 0) {
+      const Int3 g = voxel0 + v;
+      s = (tile_voxels.count(g) || (reader.ObservedBits(g) & LocalMap::kObserved)) ? 2 : 1;
+    }
+    return s == 2;
+  };
+  auto point_observed = [&](const Int3& m) {
+    Int3 lo, hi;
+    for (int a = 0; a < 3; ++a) {
+      hi[a] = FloorDiv(m[a], r);
+      lo[a] = (m[a] % r == 0) ? hi[a] - 1 : hi[a];
+    }
+    for (int x = lo.x(); x <= hi.x(); ++x)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int z = lo.z(); z <= hi.z(); ++z)
+          if (voxel_observed(Int3(x, y, z))) return true;
+    return false;
+  };
+
+  // Per grid point: -2 not seen yet, -1 not observed, else its index in `points`.
+  std::vector<int32_t> point_index(size_t(n) * n * n, -2);
+  auto local = [n](const Int3& m) { return (size_t(m.x()) * n + m.y()) * n + m.z(); };
+  std::vector<Int3> cells, points;
+  cells.reserve(voxels.size() * r * r * r);
+  for (const Int3& g : voxels) {
+    const Int3 c0 = (g - voxel0) * r;
+    for (int i = 0; i < r; ++i)
+      for (int j = 0; j < r; ++j)
+        for (int k = 0; k < r; ++k) {
+          const Int3 c = c0 + Int3(i, j, k);
+          cells.push_back(point0 + c);
+          for (int corner = 0; corner < 8; ++corner) {
+            const Int3 m = c + Int3(corner >> 2 & 1, corner >> 1 & 1, corner & 1);
+            int32_t& idx = point_index[local(m)];
+            if (idx != -2) continue;
+            if (point_observed(m)) {
+              idx = int32_t(points.size());
+              points.push_back(m);
+            } else {
+              idx = -1;
+            }
+          }
+        }
+  }
+  if (points.empty()) return piece;
+
+  const int F = src.geometry.encoding_dim();
+  std::vector<float> features(points.size() * F), values(points.size());
+  GridEncoder encoder(src.geometry, r, point0, n, reader);
+  for (size_t i = 0; i < points.size(); ++i) encoder.Encode(points[i], &features[i * F]);
+  src.decoder.Forward(features.data(), int(points.size()), values.data());
+
+  GridSamples samples;
+  samples.step_m = float(step);
+  samples.origin_m = Eigen::Vector3f::Zero();
+  samples.lookup = [&](const Int3& g, float* value) {
+    const Int3 m = g - point0;
+    if ((m.array() < 0).any() || (m.array() >= n).any()) return false;
+    const int32_t idx = point_index[local(m)];
+    if (idx < 0) return false;
+    *value = values[size_t(idx)];
+    return true;
+  };
+  std::vector<GridEdge> edges;
+  Mesh mesh = MarchingCubes(cells, samples, &edges);
+  piece->vertices = std::move(mesh.vertices);
+  piece->faces = std::move(mesh.faces);
+  const int last = B * r;
+  for (size_t i = 0; i < edges.size(); ++i) {
+    const Int3 m = edges[i].lower - point0;
+    bool on_face = false;
+    for (int a = 0; a < 3; ++a)
+      if (a != edges[i].axis && (m[a] == 0 || m[a] == last)) on_face = true;
+    if (on_face) piece->shared.emplace_back(uint32_t(i), edges[i]);
+  }
+  return piece;
+}
+
+// Joins block pieces into one indexed mesh, welding the vertices that lie on a shared grid edge.
+Mesh Weld(const std::vector<std::shared_ptr<const Piece>>& pieces) {
+  Mesh out;
+  size_t nv = 0, nf = 0;
+  for (const auto& p : pieces) {
+    nv += p->vertices.size();
+    nf += p->faces.size();
+  }
+  out.vertices.reserve(nv);
+  out.faces.reserve(nf);
+  absl::flat_hash_map<GridEdge, uint32_t, GridEdgeHash> welded;
+  std::vector<uint32_t> remap;
+  for (const auto& p : pieces) {
+    constexpr uint32_t kUnset = ~0u;
+    remap.assign(p->vertices.size(), kUnset);
+    for (const auto& [i, edge] : p->shared) {
+      auto [it, inserted] = welded.try_emplace(edge, uint32_t(out.vertices.size()));
+      if (inserted) out.vertices.push_back(p->vertices[i]);
+      remap[i] = it->second;
+    }
+    for (size_t i = 0; i < p->vertices.size(); ++i) {
+      if (remap[i] != kUnset) continue;
+      remap[i] = uint32_t(out.vertices.size());
+      out.vertices.push_back(p->vertices[i]);
+    }
+    for (const auto& f : p->faces) out.faces.push_back({remap[f[0]], remap[f[1]], remap[f[2]]});
+  }
+  return out;
+}
+
+absl::StatusOr<int> CellsPerVoxel(const MapGeometry& geo, float resolution_m) {
+  const int r = int(std::lround(geo.leaf_m() / resolution_m));
+  if (r < 1 || std::abs(r * double(resolution_m) - geo.leaf_m()) > 1e-6)
+    return absl::InvalidArgumentError(
+        absl::StrCat("mesh resolution ", resolution_m, " m does not divide the leaf size"));
+  return r;
+}
+
+// Meshes a tile from its blocks: a block whose piece in `cached` is still current (no change in
+// `log` since the piece's stamp reaches it) is reused, the others are meshed now.
+absl::StatusOr<Mesh> MeshTileBlocks(
+    const MeshTileSource& src, float resolution_m, const Int3& key, const MeshChangeLog* log,
+    absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal>* cached,
+    MeshUpdateStats* stats) {
+  const MapGeometry& geo = src.geometry;
+  auto r = CellsPerVoxel(geo, resolution_m);
+  if (!r.ok()) return r.status();
+  const double step = geo.leaf_m() / *r;
+  const uint64_t stamp = log ? log->Stamp() : 0;
+  const TileVoxels voxels = CollectTileVoxels(src, key);
+  // A feature row of level l at lattice point p reaches grid points within 2^l finest voxels of
+  // p, and an observed flag reaches one voxel: a block depends on the changes within this reach.
+  const int reach = (1 << (geo.levels() - 1)) + 1;
+
+  std::vector<std::shared_ptr<const Piece>> pieces;
+  pieces.reserve(voxels.blocks.size());
+  absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal> next;
+  MeshUpdateStats s;
+  s.blocks = int(voxels.blocks.size());
+  for (const auto& [block, block_voxels] : voxels.blocks) {
+    if (cached && log) {
+      auto it = cached->find(block);
+      const Int3 lo = block * kMeshBlockVoxels;
+      const IntBox region{lo - Int3::Constant(reach),
+                          lo + Int3::Constant(kMeshBlockVoxels + reach)};
+      if (it != cached->end() && !log->ChangedSince(it->second->stamp, region)) {
+        pieces.push_back(it->second);
+        next.emplace(block, it->second);
+        continue;
+      }
+    }
+    std::shared_ptr<Piece> piece;
+    {
+      std::shared_lock<std::shared_mutex> lock(src.mutex);
+      FeatureReader reader(src.local_map, src.store);
+      piece = MeshBlock(src, *r, step, block, block_voxels, voxels.all, reader);
+    }
+    piece->stamp = stamp;
+    ++s.blocks_remeshed;
+    pieces.push_back(piece);
+    if (cached) next.emplace(block, std::move(piece));
+  }
+  if (cached) *cached = std::move(next);
+  if (stats) *stats = s;
+  return Weld(pieces);
+}
+
 }  // namespace
 
 std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
@@ -43,83 +338,73 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
 }
 
 absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, const Int3& key) {
-  const MapGeometry& geo = src.geometry;
-  const int r = int(std::lround(geo.leaf_m() / resolution_m));
-  if (r < 1 || std::abs(r * double(resolution_m) - geo.leaf_m()) > 1e-6)
-    return absl::InvalidArgumentError(
-        absl::StrCat("mesh resolution ", resolution_m, " m does not divide the leaf size"));
-  const double step = geo.leaf_m() / r;
+  return MeshTileBlocks(src, resolution_m, key, nullptr, nullptr, nullptr);
+}
 
-  std::vector<Int3> cells;
-  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> observed_voxels;
+uint64_t MeshChangeLog::Stamp() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return stamp_;
+}
+
+void MeshChangeLog::Record(const std::vector<IntBox>& regions, bool all) {
+  std::lock_guard<std::mutex> lock(mu_);
+  ++stamp_;
+  if (all) {
+    // Everything changed: older entries can no longer decide anything.
+    entries_.clear();
+    floor_ = stamp_;
+    return;
+  }
+  for (const IntBox& b : regions) entries_.push_back({stamp_, b, false});
+  if (entries_.size() > kMaxEntries) {
+    const size_t drop = entries_.size() - kMaxEntries / 2;
+    floor_ = entries_[drop - 1].stamp;
+    entries_.erase(entries_.begin(), entries_.begin() + drop);
+  }
+}
+
+bool MeshChangeLog::ChangedSince(uint64_t stamp, const IntBox& region) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (stamp < floor_) return true;
+  for (auto it = entries_.rbegin(); it != entries_.rend() && it->stamp > stamp; ++it) {
+    const IntBox& b = it->region;
+    if ((b.lo.array() <= region.hi.array()).all() && (region.lo.array() <= b.hi.array()).all())
+      return true;
+  }
+  return false;
+}
+
+absl::StatusOr<Mesh> MeshBlockCache::Update(const MeshTileSource& src, float resolution_m,
+                                            const Int3& key, const MeshChangeLog& log, bool keep,
+                                            MeshUpdateStats* stats) {
+  std::shared_ptr<Tile> tile;
   {
-    std::shared_lock<std::shared_mutex> lock(src.mutex);
-    for (const Int3& g : ObservedVoxels(src, key)) {
-      observed_voxels.insert(g);
-      for (int i = 0; i < r; ++i)
-        for (int j = 0; j < r; ++j)
-          for (int k = 0; k < r; ++k) cells.push_back(g * r + Int3(i, j, k));
-    }
+    std::lock_guard<std::mutex> lock(mu_);
+    auto& slot = tiles_[key];
+    if (!slot) slot = std::make_shared<Tile>();
+    tile = slot;
   }
-  if (cells.empty()) return Mesh{};
-
-  // Grid points of the cells, and whether each lies in an observed voxel. A point on a voxel face
-  // belongs to every voxel that shares it; it counts as observed if any of them is, so that
-  // meshes of neighbouring observed voxels join up.
-  absl::flat_hash_map<Int3, float, Int3Hash, Int3Equal> values;
-  std::vector<Int3> points;
-  {
-    absl::flat_hash_set<Int3, Int3Hash, Int3Equal> seen;
-    std::shared_lock<std::shared_mutex> lock(src.mutex);
-    FeatureReader reader(src.local_map, src.store);
-    auto observed = [&](const Int3& m) {
-      Int3 lo, hi;
-      for (int a = 0; a < 3; ++a) {
-        hi[a] = FloorDiv(m[a], r);
-        lo[a] = (m[a] % r == 0) ? hi[a] - 1 : hi[a];
-      }
-      for (int x = lo.x(); x <= hi.x(); ++x)
-        for (int y = lo.y(); y <= hi.y(); ++y)
-          for (int z = lo.z(); z <= hi.z(); ++z) {
-            const Int3 v(x, y, z);
-            if (observed_voxels.count(v) || (reader.ObservedBits(v) & LocalMap::kObserved))
-              return true;
-          }
-      return false;
-    };
-    for (const Int3& c : cells)
-      for (int corner = 0; corner < 8; ++corner) {
-        const Int3 m = c + Int3(corner >> 2 & 1, corner >> 1 & 1, corner & 1);
-        if (seen.insert(m).second && observed(m)) points.push_back(m);
-      }
+  std::lock_guard<std::mutex> tile_lock(tile->mu);
+  auto mesh = MeshTileBlocks(src, resolution_m, key, &log, &tile->pieces, stats);
+  std::lock_guard<std::mutex> lock(mu_);
+  if (!mesh.ok() || !keep) {
+    tile->pieces.clear();
+    tile->bytes = 0;
+    auto it = tiles_.find(key);
+    if (it != tiles_.end() && it->second == tile) tiles_.erase(it);
+    return mesh;
   }
+  int64_t bytes = 0;
+  for (const auto& [block, piece] : tile->pieces) bytes += piece->Bytes();
+  tile->bytes = bytes;
+  return mesh;
+}
 
-  const int F = geo.encoding_dim();
-  std::vector<float> features, sdf;
-  for (size_t begin = 0; begin < points.size(); begin += kChunkPoints) {
-    const size_t n = std::min(kChunkPoints, points.size() - begin);
-    features.resize(n * F);
-    sdf.resize(n);
-    std::shared_lock<std::shared_mutex> lock(src.mutex);
-    FeatureReader reader(src.local_map, src.store);
-    for (size_t i = 0; i < n; ++i) {
-      const Int3& m = points[begin + i];
-      reader.Encode(m.cast<double>() * step, &features[i * F], nullptr);
-    }
-    src.decoder.Forward(features.data(), int(n), sdf.data());
-    for (size_t i = 0; i < n; ++i) values.emplace(points[begin + i], sdf[i]);
-  }
-
-  GridSamples samples;
-  samples.step_m = float(step);
-  samples.origin_m = Eigen::Vector3f::Zero();
-  samples.lookup = [&values](const Int3& g, float* value) {
-    auto it = values.find(g);
-    if (it == values.end()) return false;
-    *value = it->second;
-    return true;
-  };
-  return MarchingCubes(cells, samples);
+int64_t MeshBlockCache::MemoryBytes() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  int64_t bytes = 0;
+  for (const auto& [key, tile] : tiles_) bytes += tile->bytes;
+  return bytes;
 }
 
 }  // namespace rim

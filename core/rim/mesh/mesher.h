@@ -1,12 +1,19 @@
-// Mesh tiles (§3.6): marching cubes over one sub-map's observed voxels on a world-aligned grid.
+// Mesh tiles (§3.6): marching cubes over one sub-map's observed voxels on a world-aligned grid,
+// meshed block by block, so that a tile whose map changed in a few places re-meshes only those
+// blocks (MeshBlockCache) and still equals a tile meshed from scratch.
 #pragma once
 
+#include <memory>
+#include <mutex>
 #include <shared_mutex>
+#include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/status/statusor.h"
 #include "rim/base/mesh.h"
 #include "rim/map/local_map.h"
 #include "rim/map/submap_store.h"
+#include "rim/mesh/marching_cubes.h"
 #include "rim/model/decoder.h"
 
 namespace rim {
@@ -16,8 +23,11 @@ struct MeshTileSource {
   const LocalMap& local_map;
   const SubmapStore& store;
   const Decoder& decoder;
-  std::shared_mutex& mutex;  // shared while reading the map, released between chunks
+  std::shared_mutex& mutex;  // shared while reading the map, released between blocks
 };
+
+// Finest voxels per edge of a mesh block, the unit of re-meshing (0.8 m at a 0.1 m leaf).
+inline constexpr int kMeshBlockVoxels = 8;
 
 // Finest-level voxels (minimum-corner lattice index) owned by sub-map `key` that were observed:
 // from the live local map inside the box, from the store elsewhere. Caller holds the shared lock.
@@ -29,8 +39,62 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key);
 // - The tile owns the mesh cells whose minimum corner lies in its sub-map; cells on its upper
 //   border read features across the border, so neighbouring tiles compute bit-identical vertices
 //   on their shared faces (no seams, no gaps).
-// - The SDF is evaluated in chunks, each under the shared lock, so that meshing a large tile
-//   never holds training up for more than one chunk.
+// - Blocks are meshed one at a time under the shared lock, so that meshing a large tile never
+//   holds training up for more than one block.
 absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, const Int3& key);
+
+// What changed in the map, for MeshBlockCache: regions of finest lattice points (widened by the
+// reach of a feature row and of an observed flag) stamped with a change counter, or "everything"
+// (the decoder trained). The mapper records one change per frame, after the frame's last update.
+class MeshChangeLog {
+ public:
+  // The stamp a reader takes before it reads the map: a change recorded later has a larger one.
+  uint64_t Stamp() const;
+  // Records that `regions` (finest lattice points, inclusive) changed; `all` = everything did.
+  void Record(const std::vector<IntBox>& regions, bool all);
+  // Whether anything recorded after `stamp` touches `region`.
+  bool ChangedSince(uint64_t stamp, const IntBox& region) const;
+
+ private:
+  struct Entry {
+    uint64_t stamp;
+    IntBox region;
+    bool all;
+  };
+  static constexpr size_t kMaxEntries = 4096;
+  mutable std::mutex mu_;
+  uint64_t stamp_ = 0;
+  uint64_t floor_ = 0;  // entries up to this stamp were dropped: older pieces count as changed
+  std::vector<Entry> entries_;
+};
+
+struct MeshUpdateStats {
+  int blocks = 0;           // observed blocks of the tile
+  int blocks_remeshed = 0;  // of them, meshed now (the others came from the cache)
+};
+
+// Per-block meshes of the tiles that can still change. Update() re-meshes the blocks that a change
+// recorded since their last meshing touches, reuses the others and welds them into the tile, which
+// is the same mesh as ExtractTile's (same vertices and faces, possibly in another order). Thread
+// safe; two updates of one tile run one after the other.
+class MeshBlockCache {
+ public:
+  // `keep` says whether the tile's blocks are worth keeping afterwards (they can still change);
+  // a tile far from the box is meshed the same way and then dropped from the cache.
+  absl::StatusOr<Mesh> Update(const MeshTileSource& src, float resolution_m, const Int3& key,
+                              const MeshChangeLog& log, bool keep, MeshUpdateStats* stats);
+  // Host memory held by the cached blocks.
+  int64_t MemoryBytes() const;
+
+  struct Piece;  // one block's mesh (mesher.cc)
+ private:
+  struct Tile {
+    std::mutex mu;  // held through an update of this tile
+    absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal> pieces;
+    int64_t bytes = 0;
+  };
+  mutable std::mutex mu_;
+  absl::flat_hash_map<Int3, std::shared_ptr<Tile>, Int3Hash, Int3Equal> tiles_;
+};
 
 }  // namespace rim
