@@ -107,8 +107,9 @@ namespace {
 constexpr int kLanes = 8;
 
 template <typename Layers>
-inline const float* LayersForBlock(const Layers& layers, const float* params, float* in,
-                                   float* out) {
+__attribute__((always_inline)) inline const float* LayersForBlock(const Layers& layers,
+                                                                  const float* params, float* in,
+                                                                  float* out) {
   const int nl = int(layers.size());
   for (int k = 0; k < nl; ++k) {
     const auto& L = layers[k];
@@ -153,9 +154,11 @@ inline const float* LayersForBlock(const Layers& layers, const float* params, fl
 }
 
 // Blocks of points through the layers; a short last block is padded with zero features.
+// Always inlined, so that each caller compiles it for its own target (AVX2 or baseline).
 template <typename Layers>
-inline void ForwardBlocks(const Layers& layers, const float* params, int input_dim, int max_width,
-                          const float* features, int n, float* sdf) {
+__attribute__((always_inline)) inline void ForwardBlocks(const Layers& layers, const float* params,
+                                                         int input_dim, int max_width,
+                                                         const float* features, int n, float* sdf) {
   std::vector<float> buf(size_t(2) * max_width * kLanes);
   for (int p0 = 0; p0 < n; p0 += kLanes) {
     const int m = std::min(kLanes, n - p0);
