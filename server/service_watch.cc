@@ -12,6 +12,7 @@
 #include <mutex>
 #include <thread>
 
+#include "absl/container/flat_hash_map.h"
 #include "server/latest_queue.h"
 #include "server/service.h"
 #include "server/status_mapping.h"
@@ -62,11 +63,21 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   // the watch ended.
   bool PushRound(uint64_t* listed_version) {
     uint64_t newest = *listed_version;
-    for (const TileInfo& tile : session_->mapper().ListTiles(*listed_version)) {
+    for (TileInfo tile : session_->mapper().ListTiles(*listed_version)) {
       {
         std::lock_guard<std::mutex> lock(mu_);
         if (stop_) return false;
       }
+      // Tiles that change after the listing get versions above every listed one, so the next
+      // round lists them.
+      newest = std::max(newest, tile.version);
+      // Frames integrated since the listing (a round can take a while) may have moved the tile:
+      // mesh it at its version now, so the push carries the newest state. The next round lists it
+      // again; it is skipped unless it moved further.
+      for (const TileInfo& now : session_->mapper().ListTiles(tile.version))
+        if (now.key == tile.key) tile.version = now.version;
+      uint64_t& pushed = pushed_[tile.key];
+      if (tile.version <= pushed) continue;
       auto encoded = session_->tiles().Get(session_->mapper(), tile);
       std::lock_guard<std::mutex> lock(mu_);
       if (stop_) return false;
@@ -75,8 +86,7 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
         FinishLocked(ToGrpcStatus(encoded.status()));
         return false;
       }
-      // Tiles that change after the listing get versions above every listed one.
-      newest = std::max(newest, tile.version);
+      pushed = std::max(tile.version, (*encoded)->version);
       pending_.Put(tile.key, ToMessage(tile, **encoded));
       WriteNextLocked();
     }
@@ -153,6 +163,8 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   std::condition_variable cv_;
   // At most one message per tile: a newer version replaces a queued older one.
   LatestPerKeyQueue<Int3, rim::v1::MeshTile, Int3Hash, Int3Equal> pending_;
+  // Watcher thread only: the version each tile was last queued at.
+  absl::flat_hash_map<Int3, uint64_t, Int3Hash, Int3Equal> pushed_;
   rim::v1::MeshTile current_;
   bool writing_ = false, stop_ = false, finished_ = false;
   std::thread watcher_;
