@@ -102,13 +102,20 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
     while (true) {
       const auto round_start = std::chrono::steady_clock::now();
       if (!PushRound(&listed_version)) return;
-      {
-        // Coalescing: the next round no sooner than an interval after this one.
-        std::unique_lock<std::mutex> lock(mu_);
-        cv_.wait_until(lock, round_start + interval, [this] { return stop_; });
-        if (stop_) return;
-      }
+      // Coalescing: the next round no sooner than an interval after this one. Waited in slices,
+      // so that a session that closes meanwhile gets its last round at once.
       bool closed = false;
+      while (!closed && std::chrono::steady_clock::now() < round_start + interval) {
+        {
+          std::unique_lock<std::mutex> lock(mu_);
+          cv_.wait_until(
+              lock,
+              std::min(round_start + interval, std::chrono::steady_clock::now() + kPollInterval),
+              [this] { return stop_; });
+          if (stop_) return;
+        }
+        session_->WaitForIntegrated(~uint64_t{0}, std::chrono::milliseconds(0), &closed);
+      }
       seen_frames = session_->WaitForIntegrated(seen_frames, kPollInterval, &closed);
       if (closed) {
         // The session closed: push what its last frames changed, then end the stream.
