@@ -147,6 +147,9 @@ def drive(address: str) -> None:
                               np.full(QUERY_POINTS, 0.1)]).astype(np.float32)
     session.query(points, gradient=True)
     assert session.mesh_tiles(), "no mesh tiles"
+    # A dashboard: the first pushed tile is enough (its push delay is a metric).
+    for _ in session.watch(since=0, timeout=60.0):
+        break
     session.save()
     try:
         rim_client.Session(client, "nobody").query(points[:10])
@@ -187,6 +190,7 @@ def main() -> int:
             (f"rim_mesh_tiles_encoded_total{s}", lambda v: v >= 1),
             (f"rim_mesh_tile_bytes_total{s}", lambda v: v > 100),
             (f"rim_meshing_seconds_count{s}", lambda v: v >= 1),
+            (f"rim_mesh_tile_push_delay_seconds_count{s}", lambda v: v >= 1),
             (f'rim_submaps{{session="{ROBOT}",state="active"}}', lambda v: v >= 1),
             (f"rim_session_host_memory_bytes{s}", lambda v: v > 1e6),
             (f"rim_checkpoint_seconds_count{s}", lambda v: v >= 1),
