@@ -5,7 +5,10 @@
 # with rim_eval, draw distance slices, print the numbers and the server's own metrics, stop the
 # server. Everything it writes goes to one folder, printed at the end.
 #
-# Usage: bash deploy/demo.sh [OUT_DIR]
+# With --keep, the server stays up at the end (its dashboard URL printed) until Ctrl-C, so that a
+# person can look at the map in a browser.
+#
+# Usage: bash deploy/demo.sh [--keep] [OUT_DIR]
 # Environment: RIM_BUILD_DIR (default build), RIM_DEMO_FRAMES (default 40),
 #   RIM_DEMO_ITERATIONS (default 20), RIM_SKIP_DEPS=1 to skip the dependency script,
 #   RIM_SKIP_BUILD=1 to use the build as it is (the e2e test does both).
@@ -15,7 +18,16 @@ ROOT="$(pwd)"
 BUILD="${RIM_BUILD_DIR:-build}"
 FRAMES="${RIM_DEMO_FRAMES:-40}"
 ITERATIONS="${RIM_DEMO_ITERATIONS:-20}"
-OUT="${1:-$ROOT/demo-out}"
+KEEP=""
+OUT=""
+for arg in "$@"; do
+  case "$arg" in
+    --keep) KEEP=1 ;;
+    -*) echo "usage: bash deploy/demo.sh [--keep] [OUT_DIR]" >&2; exit 2 ;;
+    *) OUT="$arg" ;;
+  esac
+done
+OUT="${OUT:-$ROOT/demo-out}"
 ROBOT=demo_car
 
 say() { printf '\n== %s\n' "$*"; }
@@ -28,7 +40,8 @@ if [ -z "${RIM_SKIP_BUILD:-}" ]; then
   say "build ($BUILD)"
   export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
   cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release > /dev/null
-  cmake --build "$BUILD" --parallel "$(nproc)" --target rim_server rimctl rim_sim rim_eval
+  cmake --build "$BUILD" --parallel "$(nproc)" --target rim_server rimctl rim_sim rim_eval \
+    $(grep -q '^RIM_BUILD_WEB:BOOL=ON' "$BUILD/CMakeCache.txt" && echo web)
 fi
 BUILD="$(cd "$BUILD" && pwd)"
 RIMCTL="$BUILD/clients/rimctl"
@@ -36,8 +49,11 @@ rm -rf "$OUT"
 mkdir -p "$OUT"
 
 say "start rim_server"
-"$BUILD/server/rim_server" --listen 127.0.0.1:0 --metrics 127.0.0.1:0 --data-dir "$OUT/data" \
-  > "$OUT/server.out" 2> "$OUT/server.log" &
+# The browser dashboard too, when the build has it (the `web` target).
+HTTP_FLAGS=()
+[ -f "$BUILD/web/index.html" ] && HTTP_FLAGS=(--http 127.0.0.1:0)
+"$BUILD/server/rim_server" --listen 127.0.0.1:0 --metrics 127.0.0.1:0 "${HTTP_FLAGS[@]}" \
+  --data-dir "$OUT/data" > "$OUT/server.out" 2> "$OUT/server.log" &
 SERVER_PID=$!
 stop_server() {
   if kill -0 "$SERVER_PID" 2> /dev/null; then
@@ -55,6 +71,8 @@ for _ in $(seq 1 600); do
 done
 [ -n "$ADDR" ] || { echo "rim_server did not start; see $OUT/server.log" >&2; exit 1; }
 METRICS_URL="$(sed -n 's/^rim_server metrics on //p' "$OUT/server.out")"
+DASHBOARD_URL="$(sed -n 's/^rim_server dashboard on //p' "$OUT/server.out")"
+[ -n "$DASHBOARD_URL" ] && echo "dashboard: $DASHBOARD_URL (open it in a browser to watch the map grow)"
 export RIM_SERVER="$ADDR"
 # Health says SERVING once the server has warmed up.
 for _ in $(seq 1 600); do "$RIMCTL" health > /dev/null 2>&1 && break; sleep 0.1; done
@@ -108,8 +126,10 @@ for line in text.splitlines():
         print(line)
 PY
 
-stop_server
-trap - EXIT
+if [ -z "$KEEP" ]; then
+  stop_server
+  trap - EXIT
+fi
 
 say "result"
 python3 - "$OUT" "$FRAMES" "$START" "$END" << 'PY' | tee "$OUT/summary.txt"
@@ -128,3 +148,12 @@ print(f"distance slices: {os.path.join(out, 'slice.png')} (0.6 m above the stree
       f"{os.path.join(out, 'slice-street.png')} (across it)")
 print(f"metrics:   {os.path.join(out, 'metrics.txt')}; server log: {os.path.join(out, 'server.log')}")
 PY
+
+if [ -n "$KEEP" ]; then
+  say "keeping rim_server up (--keep)"
+  echo "dashboard: ${DASHBOARD_URL:-(none: the build has no web target)}"
+  echo "gRPC:      $ADDR (RIM_SERVER=$ADDR rimctl ...)"
+  echo "press Ctrl-C to stop the server"
+  trap 'stop_server; exit 0' INT TERM
+  wait "$SERVER_PID" || true
+fi

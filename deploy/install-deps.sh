@@ -13,6 +13,8 @@ PACKAGES=(
   # service
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev libdraco-dev
+  # the dashboard's HTTP server (rim_server --http)
+  libcivetweb-dev
   # token digests (SHA-256) for rim_server --tokens
   libssl-dev
   # tests and benchmarks; clang and its libFuzzer runtime for tests/fuzz (RIM_FUZZ=ON)
@@ -20,7 +22,14 @@ PACKAGES=(
   # python client: installed with pip into a venv, offline (setuptools, wheel from Debian)
   python3 python3-numpy python3-grpcio python3-protobuf python3-venv python3-pip
   python3-setuptools python3-wheel
+  # the dashboard's browser test: headless Chromium driven over the DevTools protocol
+  chromium python3-websocket
 )
+# The dashboard's three.js comes from npm (clients/web/package-lock.json, `npm ci` at build time):
+# Debian's nodejs and npm, unless the machine already has an npm.
+if ! command -v npm > /dev/null 2>&1; then
+  PACKAGES+=(nodejs npm)
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -25,6 +25,7 @@
 #include "absl/cleanup/cleanup.h"
 #include "rim/base/version.h"
 #include "server/compute_scheduler.h"
+#include "server/http_api.h"
 #include "server/metrics.h"
 #include "server/security.h"
 #include "server/server_config.h"
@@ -157,6 +158,30 @@ int Run(int argc, char** argv) {
   limits.host_memory_budget_bytes = config->host_memory_budget_bytes;
   rim::server::RimService service(&sessions, limits, &security->authorizer);
 
+  // The browser dashboard and its JSON API (docs/dashboard.md), on civetweb's own threads.
+  // Declared after `sessions`, so it stops before they are destroyed.
+  std::unique_ptr<rim::server::HttpServer> http;
+  if (!config->http.empty()) {
+    const std::string web_root =
+        config->web_root.empty() ? rim::server::DefaultWebRoot() : config->web_root;
+    auto files = rim::server::StaticFiles::Load(web_root.empty() ? "(not found)" : web_root);
+    if (!files.ok()) {
+      std::cerr << "rim_server: --http: " << files.status().message() << "\n";
+      return 2;
+    }
+    auto started = rim::server::HttpServer::Start(
+        config->http, std::make_unique<rim::server::HttpApi>(&sessions, &security->authorizer,
+                                                             std::move(*files)));
+    if (!started.ok()) {
+      std::cerr << "rim_server: " << started.status().message() << "\n";
+      return 1;
+    }
+    http = std::move(*started);
+    const std::string http_host = config->http.substr(0, config->http.rfind(':'));
+    std::printf("rim_server dashboard on http://%s:%d/\n", http_host.c_str(), http->port());
+    std::fflush(stdout);
+  }
+
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
@@ -200,6 +225,7 @@ int Run(int argc, char** argv) {
   }
   std::cerr << "rim_server: signal " << signal << ", shutting down\n";
   server->GetHealthCheckService()->SetServingStatus(false);
+  http.reset();  // waits for dashboard requests in progress
   sessions.BeginShutdown();
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::seconds(config->shutdown_deadline_s));

@@ -38,10 +38,15 @@ bool IsLoopbackListen(absl::string_view listen) {
 }
 
 absl::Status CheckExposure(const ServerConfig& config) {
-  if (!config.tokens_file.empty() || config.insecure || IsLoopbackListen(config.listen))
-    return absl::OkStatus();
+  if (!config.tokens_file.empty() || config.insecure) return absl::OkStatus();
+  // The dashboard's API reads every map, so it follows the same rule as the gRPC port.
+  const std::string& exposed = !IsLoopbackListen(config.listen) ? config.listen
+                               : !config.http.empty() && !IsLoopbackListen(config.http)
+                                   ? config.http
+                                   : std::string();
+  if (exposed.empty()) return absl::OkStatus();
   return absl::FailedPreconditionError(absl::StrCat(
-      "refusing to listen on ", config.listen,
+      "refusing to listen on ", exposed,
       " without --tokens: anyone who can reach it could read, change and close every map. Give "
       "--tokens FILE (and --tls-cert/--tls-key; see docs/security.md), listen on loopback, or "
       "pass --insecure to serve it open on purpose"));

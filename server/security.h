@@ -24,7 +24,7 @@ namespace rim::server {
 bool IsLoopbackListen(absl::string_view listen);
 
 // OK, or FAILED_PRECONDITION explaining why a server without --tokens must not listen on
-// `config.listen` (not loopback and no --insecure).
+// `config.listen` or `config.http` (not loopback and no --insecure).
 absl::Status CheckExposure(const ServerConfig& config);
 
 // Plaintext credentials without --tls-cert; TLS with the certificate chain and key, requiring and

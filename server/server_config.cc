@@ -32,6 +32,10 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     c->data_dir = value;
   } else if (name == "metrics") {
     c->metrics = value;
+  } else if (name == "http") {
+    c->http = value;
+  } else if (name == "web-root") {
+    c->web_root = value;
   } else if (name == "preset") {
     c->default_preset = value;
   } else if (name == "max-sessions") {
@@ -100,6 +104,7 @@ absl::Status ApplyFile(const std::string& path, ServerConfig* c) {
 
 std::string ServerUsage() {
   return "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE]\n"
+         "                  [--http ADDR (browser dashboard and JSON API) [--web-root DIR]]\n"
          "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
          "                  [--max-query-points N] [--max-points-per-scan N]\n"
          "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n"
@@ -119,6 +124,8 @@ std::string ServerConfig::ToString() const {
   s << "listen = " << listen << "\n"
     << "data_dir = " << data_dir << "\n"
     << "metrics = " << metrics << "\n"
+    << "http = " << http << "\n"
+    << "web_root = " << web_root << "\n"
     << "config = " << config_file << "\n"
     << "preset = " << default_preset << "\n"
     << "max_sessions = " << max_sessions << "\n"

@@ -13,7 +13,12 @@ namespace rim::server {
 struct ServerConfig {
   std::string listen = "127.0.0.1:50051";
   std::string data_dir;
-  std::string metrics;      // host:port of the Prometheus /metrics endpoint; empty: none
+  std::string metrics;  // host:port of the Prometheus /metrics endpoint; empty: none
+  // host:port of the browser dashboard and its read-only JSON API (docs/dashboard.md); empty: none
+  std::string http;
+  // The dashboard's files; empty: found next to the binary (the build tree's web/, or
+  // ../share/rim/web when installed).
+  std::string web_root;
   std::string config_file;  // --config
   std::string default_preset = "maicity";
   int max_sessions = 16;

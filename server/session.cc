@@ -192,6 +192,24 @@ void Session::RecordTilePush(uint64_t tile_version) {
   if (at >= 0) options_.events->TilePushed(robot_id_, std::max(0.0, SteadySeconds() - at));
 }
 
+std::vector<TrajectoryPoint> Session::Trajectory(uint64_t since, uint64_t* next) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  *next = trajectory_next_;
+  std::vector<TrajectoryPoint> out;
+  if (trajectory_.empty() || since >= trajectory_next_) return out;
+  const uint64_t first = trajectory_.front().index;
+  out.assign(trajectory_.begin() + std::ptrdiff_t(since > first ? since - first : 0),
+             trajectory_.end());
+  return out;
+}
+
+bool Session::LatestPose(TrajectoryPoint* pose) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (trajectory_.empty()) return false;
+  *pose = trajectory_.back();
+  return true;
+}
+
 void Session::Run() {
   std::unique_lock<std::mutex> lock(mu_);
   while (true) {
@@ -249,6 +267,12 @@ void Session::Run() {
       ++stats_.integrated;
       integrated_at_.emplace_back(mapper_->map_version(), SteadySeconds());
       if (integrated_at_.size() > 1024) integrated_at_.pop_front();
+      TrajectoryPoint pose;
+      pose.index = trajectory_next_++;
+      pose.position = item.scan.T_world_sensor.translation().cast<float>();
+      pose.orientation = Eigen::Quaternionf(item.scan.T_world_sensor.rotation().cast<float>());
+      trajectory_.push_back(pose);
+      if (trajectory_.size() > kTrajectoryLimit) trajectory_.pop_front();
       stats_.last_loss = timing.loss;
       stats_.last_timing = timing;
     }

@@ -49,6 +49,13 @@ struct IntegratedAck {
   uint64_t lag_frames = 0;
 };
 
+// The sensor pose of one integrated frame.
+struct TrajectoryPoint {
+  uint64_t index = 0;  // counts the frames this process integrated in the session, from 0
+  Vec3f position = Vec3f::Zero();
+  Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
+};
+
 struct SessionStats {
   uint64_t accepted = 0, integrated = 0, rejected = 0;
   uint64_t failed = 0;  // accepted, but training it returned an error
@@ -114,6 +121,14 @@ class Session {
   double IntegratedAt(uint64_t map_version) const;
   // Reports a tile pushed to a watcher (metrics: delay since its frame was integrated).
   void RecordTilePush(uint64_t tile_version);
+  // The sensor poses of integrated frames with index >= `since`, oldest first, and in *next the
+  // index the next frame will get. The session keeps the last kTrajectoryLimit frames it
+  // integrated in this process (a loaded session starts empty); `since` older than those gives
+  // the oldest kept.
+  static constexpr size_t kTrajectoryLimit = 20000;
+  std::vector<TrajectoryPoint> Trajectory(uint64_t since, uint64_t* next) const;
+  // The last integrated frame's pose; false before the first.
+  bool LatestPose(TrajectoryPoint* pose) const;
 
  private:
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
@@ -141,6 +156,8 @@ class Session {
   SessionStats stats_;
   // (map version after the frame, steady seconds when it was integrated), oldest first.
   std::deque<std::pair<uint64_t, double>> integrated_at_;
+  std::deque<TrajectoryPoint> trajectory_;  // the last kTrajectoryLimit frames, oldest first
+  uint64_t trajectory_next_ = 0;
   absl::Status last_checkpoint_;
   // Trainer thread only: when the distance field's last refresh ended and how long it took
   // (steady clock seconds), to keep refreshes between frames to a share of the session's time.

@@ -35,7 +35,10 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   encoded->version = tile.version;
   encoded->draco = std::move(*draco);
   encoded->vertex_count = uint32_t(mesh->vertices.size());
-  encoded->face_count = uint32_t(mesh->faces.size());
+  // The faces a decoder gets back: the encoder leaves out those with a repeated vertex.
+  encoded->face_count = 0;
+  for (const auto& f : mesh->faces)
+    encoded->face_count += f[0] != f[1] && f[1] != f[2] && f[0] != f[2];
   if (on_encoded_)
     on_encoded_(encoded->draco.size(),
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),

@@ -19,7 +19,7 @@ struct EncodedTile {
   uint64_t version = 0;
   std::string draco;
   uint32_t vertex_count = 0;
-  uint32_t face_count = 0;
+  uint32_t face_count = 0;  // faces in the payload (degenerate ones are not encoded)
 };
 
 class TileCache {

@@ -63,9 +63,12 @@ std::vector<PosedScan> Scans(int count, uint32_t seed) {
 // train.min_iterations a session trains fewer while its queue is full, and the accuracy checks
 // would depend on how fast the machine is.
 const std::vector<std::pair<std::string, std::string>> kSmallMap = {
-    {"grid.half_extent_x_m", "2"},   {"grid.half_extent_y_m", "2"},
-    {"grid.z_min_m", "-1.2"},        {"grid.z_max_m", "1.2"},
-    {"train.iterations", "15"},      {"train.min_iterations", "15"},
+    {"grid.half_extent_x_m", "2"},
+    {"grid.half_extent_y_m", "2"},
+    {"grid.z_min_m", "-1.2"},
+    {"grid.z_max_m", "1.2"},
+    {"train.iterations", "15"},
+    {"train.min_iterations", "15"},
     {"sampler.rays_per_iteration", "512"}};
 
 class ClientTest : public ::testing::Test {

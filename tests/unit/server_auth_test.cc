@@ -181,6 +181,17 @@ TEST(AuthTest, ExposureNeedsTokensOrInsecure) {
   EXPECT_FALSE(loopback->insecure);
   EXPECT_TRUE(CheckExposure(*loopback).ok());
   EXPECT_FALSE(Parse({"--data-dir", "/d", "--insecure=maybe"}).ok());
+  // The dashboard's API reads every map: --http follows the same rule.
+  auto http = Parse({"--data-dir", "/d", "--http", "0.0.0.0:8080"});
+  ASSERT_TRUE(http.ok()) << http.status();
+  EXPECT_THAT(std::string(CheckExposure(*http).message()),
+              HasSubstr("refusing to listen on 0.0.0.0:8080 without --tokens"));
+  auto http_loopback = Parse({"--data-dir", "/d", "--http", "127.0.0.1:0"});
+  ASSERT_TRUE(http_loopback.ok());
+  EXPECT_TRUE(CheckExposure(*http_loopback).ok());
+  auto http_tokens = Parse({"--data-dir", "/d", "--http", "0.0.0.0:8080", "--tokens", "/t"});
+  ASSERT_TRUE(http_tokens.ok());
+  EXPECT_TRUE(CheckExposure(*http_tokens).ok());
 }
 
 TEST(AuthTest, TlsFlagsGoTogether) {
