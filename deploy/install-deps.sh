@@ -24,6 +24,8 @@ PACKAGES=(
   python3-setuptools python3-wheel
   # the dashboard's browser test: headless Chromium driven over the DevTools protocol
   chromium python3-websocket
+  # the proxy in front of replicas (deploy/haproxy), run by the scale test
+  haproxy
 )
 # The dashboard's three.js comes from npm (clients/web/package-lock.json, `npm ci` at build time):
 # Debian's nodejs and npm, unless the machine already has an npm.

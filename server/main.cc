@@ -133,6 +133,15 @@ int Run(int argc, char** argv) {
   manager_options.max_sessions = config->max_sessions;
   manager_options.queue_length = config->queue_length;
   manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
+  manager_options.take_over = config->shared_sessions;
+  manager_options.replica_id = config->replica_id;
+  if (manager_options.replica_id.empty()) {
+    char host[256] = {};
+    gethostname(host, sizeof(host) - 1);
+    manager_options.replica_id = std::string(host) + "/" + std::to_string(getpid());
+  }
+  std::cerr << "rim_server: replica " << manager_options.replica_id
+            << (config->shared_sessions ? ", sessions shared with other replicas\n" : "\n");
   rim::server::SessionManager sessions(manager_options);
   metrics.WatchSessions(&sessions);
   // Declared after `sessions`, so it runs before `sessions` is destroyed on every way out of Run:

@@ -62,6 +62,13 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     c->tls_key = value;
   } else if (name == "tls-client-ca") {
     c->tls_client_ca = value;
+  } else if (name == "replica-id") {
+    c->replica_id = value;
+  } else if (name == "shared-sessions") {
+    if (value != "true" && value != "false")
+      return absl::InvalidArgumentError(
+          absl::StrCat("--shared-sessions: expected true or false, got '", value, "'"));
+    c->shared_sessions = value == "true";
   } else if (name == "insecure") {
     if (value != "true" && value != "false")
       return absl::InvalidArgumentError(
@@ -115,6 +122,8 @@ std::string ServerUsage() {
          "                  [--tokens FILE] [--tls-cert FILE --tls-key FILE [--tls-client-ca "
          "FILE]]\n"
          "                  [--insecure (serve a non-loopback --listen without --tokens)]\n"
+         "                  [--shared-sessions (replicas share --data-dir: open a session no\n"
+         "                   live replica holds on its first call)] [--replica-id NAME]\n"
          "       rim_server --hash-token TOKEN|-   (SHA-256 for a --tokens line; '-': from stdin)\n"
          "access control and TLS: docs/security.md\n";
 }
@@ -141,7 +150,9 @@ std::string ServerConfig::ToString() const {
     << "tls_cert = " << tls_cert << "\n"
     << "tls_key = " << tls_key << "\n"
     << "tls_client_ca = " << tls_client_ca << "\n"
-    << "insecure = " << (insecure ? "true" : "false") << "\n";
+    << "insecure = " << (insecure ? "true" : "false") << "\n"
+    << "replica_id = " << replica_id << "\n"
+    << "shared_sessions = " << (shared_sessions ? "true" : "false") << "\n";
   return s.str();
 }
 
@@ -153,7 +164,7 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
       return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
     arg = arg.substr(2);
     const size_t eq = arg.find('=');
-    if (arg == "insecure") {  // the one flag without a value
+    if (arg == "insecure" || arg == "shared-sessions") {  // the flags without a value
       flags.emplace_back(arg, "true");
     } else if (eq != std::string::npos) {
       flags.emplace_back(arg.substr(0, eq), arg.substr(eq + 1));

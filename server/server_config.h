@@ -38,6 +38,11 @@ struct ServerConfig {
   std::string tls_key;        // --tls-key: PEM private key of --tls-cert
   std::string tls_client_ca;  // --tls-client-ca: require client certificates signed by it (mTLS)
   bool insecure = false;      // --insecure: allow a non-loopback --listen without --tokens
+  // Replicas sharing one data dir (docs/service.md, "Replicas and shared storage"): this
+  // replica's name in session leases (empty: host name and process id), and whether a call about
+  // a session no live replica holds opens it here.
+  std::string replica_id;
+  bool shared_sessions = false;
   // Frames that may train at once across all sessions (ComputeScheduler); 0: one per two cores.
   int train_slots = 0;
 

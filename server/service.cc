@@ -1,5 +1,6 @@
 #include "server/service.h"
 
+#include <algorithm>
 #include <chrono>
 #include <utility>
 #include <vector>
@@ -63,6 +64,7 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
   info->set_host_memory_bytes(uint64_t(mapper.local_map_bytes + mapper.submap_bytes));
   info->set_decoder_frozen(mapper.decoder_frozen);
   info->set_last_loss(stats.last_loss);
+  info->set_map_frames(uint64_t(std::max<int64_t>(0, mapper.frames)));
 }
 
 grpc::ServerUnaryReactor* RimService::CreateSession(grpc::CallbackServerContext* ctx,
@@ -140,7 +142,7 @@ grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScan
   return NewScanStreamReactor(sessions_, limits_, *principal);
 }
 
-absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
+absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,
                          const rim::v1::QuerySdfRequest& request,
                          rim::v1::QuerySdfResponse* response) {
   const auto start = std::chrono::steady_clock::now();

@@ -75,7 +75,7 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
     SessionManager* sessions, const ServiceLimits& limits, const Principal& principal);
 // One query (unary, or one message of a query stream): points limited to max_query_points.
-absl::Status AnswerQuery(const SessionManager& sessions, const ServiceLimits& limits,
+absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,
                          const rim::v1::QuerySdfRequest& request,
                          rim::v1::QuerySdfResponse* response);
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(

@@ -147,6 +147,17 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
       ReadNextLocked();
       return;
     }
+    // Sent again after a broken stream, and taken before: acknowledged, not integrated twice.
+    if (in_.resend() && (*session)->Accepted(sequence)) {
+      std::lock_guard<std::mutex> lock(shared_->mu);
+      for (auto state : {rim::v1::ScanAck::ACCEPTED, rim::v1::ScanAck::INTEGRATED}) {
+        rim::v1::ScanAck ack = MakeAck(**session, sequence, state);
+        ack.set_duplicate(true);
+        EnqueueLocked(std::move(ack));
+      }
+      ReadNextLocked();
+      return;
+    }
     // Over the memory budget, ingest refuses new scans rather than growing (§5.2 limits).
     const absl::Status budget = sessions_->CheckHostMemoryBudget();
     absl::StatusOr<PosedScan> scan =

@@ -88,6 +88,9 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
   if (queue_.size() >= size_t(options_.queue_length))
     return absl::ResourceExhaustedError(absl::StrCat(
         "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
+  if (options_.lease) {
+    if (absl::Status owned = options_.lease->Check(); !owned.ok()) return owned;
+  }
   if (wal_) {
     // Durable before it counts as accepted: a crash after this point loses nothing (§5.3).
     const auto start = std::chrono::steady_clock::now();
@@ -97,6 +100,8 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
     if (options_.events) options_.events->WalAppended(robot_id_, SecondsSince(start));
   }
   ++next_index_;
+  last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
+  has_sequence_ = true;
   queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
   ++stats_.accepted;
   if (options_.events) options_.events->ScanAccepted(robot_id_);
@@ -120,10 +125,19 @@ absl::Status Session::Checkpoint(const std::string& dir) {
   int64_t frames = 0;
   // A link planted in the session's folder since it was opened would redirect the save.
   if (absl::Status s = RefuseSymlinksUnder(dir); !s.ok()) return s;
+  if (options_.lease) {
+    if (absl::Status owned = options_.lease->Check(); !owned.ok()) return owned;
+  }
   absl::Status saved = mapper_->Save(dir, &frames);
   if (!saved.ok()) return saved;
   const uint64_t bytes = CheckpointBytes(dir);
   std::lock_guard<std::mutex> lock(mu_);
+  // The highest sequence accepted so far, before the log records that held it are dropped: a
+  // client that sends scans again after a broken stream must find them taken (Scan.resend).
+  if (has_sequence_) {
+    saved = WriteFileAtomic(dir + "/" + kSequenceFile, "SEQN", std::to_string(last_sequence_));
+    if (!saved.ok()) return saved;
+  }
   absl::Status truncated = wal_ ? wal_->TruncateBefore(uint64_t(frames)) : absl::OkStatus();
   stats_.last_checkpoint_bytes = bytes;
   if (wal_) stats_.wal_bytes = wal_->bytes();
@@ -190,6 +204,17 @@ void Session::RecordTilePush(uint64_t tile_version) {
   if (!options_.events) return;
   const double at = IntegratedAt(tile_version);
   if (at >= 0) options_.events->TilePushed(robot_id_, std::max(0.0, SteadySeconds() - at));
+}
+
+bool Session::Accepted(uint64_t sequence) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return has_sequence_ && sequence <= last_sequence_;
+}
+
+void Session::RestoreLastSequence(uint64_t sequence) {
+  std::lock_guard<std::mutex> lock(mu_);
+  last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
+  has_sequence_ = true;
 }
 
 std::vector<TrajectoryPoint> Session::Trajectory(uint64_t since, uint64_t* next) const {

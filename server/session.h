@@ -20,6 +20,7 @@
 #include "rim/mapper.h"
 #include "server/compute_scheduler.h"
 #include "server/session_events.h"
+#include "server/session_lease.h"
 #include "server/tile_cache.h"
 #include "server/wal.h"
 
@@ -33,6 +34,10 @@ struct SessionOptions {
   // truncates the write-ahead log, so that the log (and replay after a crash) stays short.
   int checkpoint_every_frames = 0;  // 0: never on its own
   std::string checkpoint_dir;
+  // The session folder's lease (server/session_lease.h): checked before every write to the
+  // folder (log appends, checkpoints), so that a replica that lost the session writes nothing
+  // more. Null: no check.
+  std::shared_ptr<const SessionLease> lease;
   // Receives what the session does, for metrics; not owned, outlives the session; may be null.
   SessionEvents* events = nullptr;
   // Shares the compute with other sessions: a slot is held while a frame trains. Not owned,
@@ -130,6 +135,14 @@ class Session {
   // The last integrated frame's pose; false before the first.
   bool LatestPose(TrajectoryPoint* pose) const;
 
+  // Whether a scan with this sequence number was accepted already: at or below the highest one
+  // accepted (in this process, or before it: RestoreLastSequence). Clients number a robot's scans
+  // increasingly; a client resending after a broken stream relies on this (Scan.resend).
+  bool Accepted(uint64_t sequence) const;
+  void RestoreLastSequence(uint64_t sequence);
+  // In a session folder: the highest accepted sequence at the last checkpoint.
+  static constexpr const char* kSequenceFile = "sequence.rimf";
+
  private:
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
           const SessionOptions& options, std::unique_ptr<WriteAheadLog> wal);
@@ -156,6 +169,8 @@ class Session {
   SessionStats stats_;
   // (map version after the frame, steady seconds when it was integrated), oldest first.
   std::deque<std::pair<uint64_t, double>> integrated_at_;
+  uint64_t last_sequence_ = 0;  // the highest accepted sequence, when has_sequence_
+  bool has_sequence_ = false;
   std::deque<TrajectoryPoint> trajectory_;  // the last kTrajectoryLimit frames, oldest first
   uint64_t trajectory_next_ = 0;
   absl::Status last_checkpoint_;

@@ -1,7 +1,11 @@
 #include "server/session_manager.h"
 
+#include <chrono>
 #include <filesystem>
+#include <optional>
+#include <thread>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "rim/base/binary_io.h"
@@ -138,6 +142,7 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   }
   auto session = CreateOnDisk(robot_id, *config, MakeSessionOptions(robot_id));
   absl::Status admitted = session.ok() ? AdmitUnderBudget(**session) : session.status();
+  if (!admitted.ok()) ReleaseLease(robot_id);
   if (session.ok() && !admitted.ok()) {
     // Refused: nothing of it stays, on disk or in memory.
     session->reset();
@@ -152,13 +157,58 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   return shared;
 }
 
-absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& robot_id) const {
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Find(const std::string& robot_id) const {
   if (absl::Status s = ValidateRobotId(robot_id); !s.ok()) return s;
   std::lock_guard<std::mutex> lock(mu_);
   auto it = sessions_.find(robot_id);
   if (it == sessions_.end())
     return absl::NotFoundError(absl::StrCat("no session for robot_id ", robot_id));
   return it->second;
+}
+
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& robot_id) {
+  auto found = Find(robot_id);
+  if (found.ok() || !options_.take_over || found.status().code() != absl::StatusCode::kNotFound ||
+      stopping_)
+    return found;
+  // Another replica's session (saved, or left when it died): take it over if its folder holds
+  // one. Two calls racing here both try; one loads, the other finds it open (ALREADY_EXISTS).
+  std::error_code ec;
+  if (!std::filesystem::exists(AbsoluteDir(robot_id) + "/config.rimf", ec)) return found;
+  auto loaded = Load(robot_id);
+  if (loaded.ok() || loaded.status().code() != absl::StatusCode::kAlreadyExists) return loaded;
+  for (int i = 0; i < 600; ++i) {  // the racing load finishes (pending_), then it is open
+    auto open = Find(robot_id);
+    if (open.ok()) return open;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  return loaded;
+}
+
+absl::StatusOr<std::shared_ptr<SessionLease>> SessionManager::TakeLease(
+    const std::string& robot_id) const {
+  auto lease = SessionLease::Acquire(AbsoluteDir(robot_id), options_.replica_id);
+  if (!lease.ok()) {
+    if (lease.status().code() == absl::StatusCode::kFailedPrecondition)
+      return absl::FailedPreconditionError(absl::StrCat(
+          "session ", robot_id,
+          " is open on another replica: ", SessionLease::DescribeOwner(AbsoluteDir(robot_id)),
+          " holds its lease; send the robot's calls there"));
+    return lease.status();
+  }
+  return std::shared_ptr<SessionLease>(std::move(*lease));
+}
+
+void SessionManager::ReleaseLease(const std::string& robot_id) {
+  std::shared_ptr<SessionLease> lease;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = leases_.find(robot_id);
+    if (it == leases_.end()) return;
+    lease = std::move(it->second);
+    leases_.erase(it);
+  }
+  lease->Release();
 }
 
 std::vector<std::shared_ptr<Session>> SessionManager::List() const {
@@ -168,17 +218,30 @@ std::vector<std::shared_ptr<Session>> SessionManager::List() const {
   return out;
 }
 
-absl::StatusOr<std::unique_ptr<Session>> SessionManager::CreateOnDisk(
-    const std::string& robot_id, const MapperConfig& config, const SessionOptions& options) {
+absl::StatusOr<std::unique_ptr<Session>> SessionManager::CreateOnDisk(const std::string& robot_id,
+                                                                      const MapperConfig& config,
+                                                                      SessionOptions options) {
   RIM_RETURN_IF_ERROR(RefuseLinksToSession(robot_id));
   const std::string dir = AbsoluteDir(robot_id);
   std::error_code ec;
+  const bool existed = std::filesystem::exists(dir, ec);
+  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  // The folder's lease first: a session another live replica has open is that replica's.
+  auto lease = TakeLease(robot_id);
+  if (!lease.ok()) {
+    if (!existed) std::filesystem::remove_all(dir, ec);
+    return lease.status();
+  }
   // A folder left by a saved or crashed session is its data: never overwrite it silently.
   if (std::filesystem::exists(dir + "/CURRENT", ec) ||
       std::filesystem::exists(dir + "/config.rimf", ec))
     return absl::FailedPreconditionError(absl::StrCat(
         "robot_id ", robot_id, " has a saved session in the data directory: LoadSession it"));
-  RIM_RETURN_IF_ERROR(MakeDirs(dir));
+  options.lease = *lease;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    leases_[robot_id] = *lease;  // released by Close, or below when the session is refused
+  }
   // The config comes first, so that a crash before any checkpoint can still be replayed.
   RIM_RETURN_IF_ERROR(WriteFileAtomic(dir + "/config.rimf", "CONF", config.ToString()));
   auto wal = WriteAheadLog::Open(dir + "/wal");
@@ -215,6 +278,7 @@ absl::Status SessionManager::Close(const std::string& robot_id, bool save) {
     std::error_code ec;
     std::filesystem::remove_all(AbsoluteDir(robot_id), ec);
   }
+  ReleaseLease(robot_id);  // another replica may open it from now on
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
   return closed;
@@ -243,24 +307,38 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Load(const std::string&
       return absl::NotFoundError(absl::StrCat("no saved session for robot_id ", robot_id));
     pending_[robot_id] = true;
   }
-  auto restored = Restore(dir, BudgetLeft());
+  // The lease before reading anything: the log must not grow under the replay.
+  auto lease = TakeLease(robot_id);
+  if (!lease.ok()) {
+    std::lock_guard<std::mutex> lock(mu_);
+    pending_.erase(robot_id);
+    return lease.status();
+  }
+  std::optional<uint64_t> last_sequence;
+  auto restored = Restore(dir, BudgetLeft(), &last_sequence);
   std::shared_ptr<Session> shared;
   absl::Status admitted = restored.status();
   if (restored.ok()) {
-    shared = Session::Adopt(robot_id, std::move(restored->first), MakeSessionOptions(robot_id),
-                            std::move(restored->second));
+    SessionOptions options = MakeSessionOptions(robot_id);
+    options.lease = *lease;
+    shared =
+        Session::Adopt(robot_id, std::move(restored->first), options, std::move(restored->second));
+    if (last_sequence) shared->RestoreLastSequence(*last_sequence);
     admitted = AdmitUnderBudget(*shared);
     if (!admitted.ok()) shared.reset();  // the saved session stays on disk, untouched
   }
+  if (!admitted.ok()) (*lease)->Release();
   std::lock_guard<std::mutex> lock(mu_);
   pending_.erase(robot_id);
   if (!admitted.ok()) return admitted;
   sessions_[robot_id] = shared;
+  leases_[robot_id] = *lease;
   return shared;
 }
 
 absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>>
-SessionManager::Restore(const std::string& dir, uint64_t max_host_bytes) {
+SessionManager::Restore(const std::string& dir, uint64_t max_host_bytes,
+                        std::optional<uint64_t>* last_sequence) {
   // The last checkpoint if there is one, else a fresh map from the session's config...
   std::unique_ptr<Mapper> mapper;
   std::error_code ec;
@@ -279,8 +357,19 @@ SessionManager::Restore(const std::string& dir, uint64_t max_host_bytes) {
   // accepted scan). Replay integrates with the configured iterations.
   RIM_ASSIGN_OR_RETURN(std::unique_ptr<WriteAheadLog> wal, WriteAheadLog::Open(dir + "/wal"));
   Mapper* m = mapper.get();
+  // The highest sequence accepted: the checkpoint's record of it, then the log's.
+  if (std::filesystem::exists(dir + "/" + Session::kSequenceFile, ec)) {
+    RIM_ASSIGN_OR_RETURN(std::string text,
+                         ReadFileChecked(dir + "/" + Session::kSequenceFile, "SEQN"));
+    uint64_t v = 0;
+    if (!absl::SimpleAtoi(text, &v))
+      return absl::DataLossError(absl::StrCat(dir, "/", Session::kSequenceFile, ": not a number"));
+    *last_sequence = v;
+  }
   RIM_RETURN_IF_ERROR(wal->Replay(
-      uint64_t(m->frames()), [m, &dir](uint64_t index, uint64_t, PosedScan scan) -> absl::Status {
+      uint64_t(m->frames()),
+      [m, &dir, last_sequence](uint64_t index, uint64_t sequence, PosedScan scan) -> absl::Status {
+        *last_sequence = std::max(last_sequence->value_or(sequence), sequence);
         absl::Status s = m->IntegrateScan(scan);
         if (s.ok()) return s;
         return absl::Status(s.code(),
@@ -302,6 +391,7 @@ absl::Status SessionManager::CloseAll(bool save) {
       absl::Status s = SaveLocked(*session);
       if (!s.ok() && first.ok()) first = s;
     }
+    ReleaseLease(id);
   }
   return first;
 }

@@ -8,6 +8,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -30,6 +31,11 @@ struct SessionManagerOptions {
   SessionEvents* events = nullptr;
   // Shares the compute between the sessions' trainers; not owned; may be null.
   ComputeScheduler* scheduler = nullptr;
+  // This replica's name in the session leases (docs/service.md, "Replicas and shared storage").
+  std::string replica_id = "rim_server";
+  // Replicas share the data dir: a call about a session that no replica has open opens it here
+  // (its last checkpoint, then its log), as LoadSession would.
+  bool take_over = false;
 };
 
 // Host memory a session's map holds: live grids with optimiser state, sub-maps in memory, and the
@@ -49,8 +55,12 @@ class SessionManager {
   absl::StatusOr<std::shared_ptr<Session>> Create(
       const std::string& robot_id, const std::string& preset,
       const std::vector<std::pair<std::string, std::string>>& overrides);
-  // NOT_FOUND for an unknown session.
-  absl::StatusOr<std::shared_ptr<Session>> Get(const std::string& robot_id) const;
+  // NOT_FOUND for an unknown session. With take_over, a session saved (or left by a replica
+  // that died) in the data dir is opened here first; FAILED_PRECONDITION naming the owner when a
+  // live replica holds it.
+  absl::StatusOr<std::shared_ptr<Session>> Get(const std::string& robot_id);
+  // The session if it is open here (no take-over).
+  absl::StatusOr<std::shared_ptr<Session>> Find(const std::string& robot_id) const;
   // Every session, ordered by robot id.
   std::vector<std::shared_ptr<Session>> List() const;
   // Drains and stops the session, after saving it when `save` is set; it is removed even if the
@@ -89,11 +99,12 @@ class SessionManager {
   // A new session folder: config, empty write-ahead log.
   absl::StatusOr<std::unique_ptr<Session>> CreateOnDisk(const std::string& robot_id,
                                                         const MapperConfig& config,
-                                                        const SessionOptions& options);
+                                                        SessionOptions options);
   // The mapper of a saved or crashed session, its log replayed, and the log. A map needing more
   // than `max_host_bytes` at start (0: no limit) is RESOURCE_EXHAUSTED before it is allocated.
+  // *last_sequence: the highest scan sequence the session had accepted (none: never known).
   static absl::StatusOr<std::pair<std::unique_ptr<Mapper>, std::unique_ptr<WriteAheadLog>>> Restore(
-      const std::string& dir, uint64_t max_host_bytes);
+      const std::string& dir, uint64_t max_host_bytes, std::optional<uint64_t>* last_sequence);
 
   const SessionManagerOptions options_;
   std::atomic<bool> stopping_{false};
@@ -101,6 +112,11 @@ class SessionManager {
   std::map<std::string, std::shared_ptr<Session>> sessions_;
   // Ids being created or loaded (outside the lock), counted against the limit.
   std::map<std::string, bool> pending_;
+  // The lease of each open session's folder, released when it closes.
+  std::map<std::string, std::shared_ptr<SessionLease>> leases_;
+  // Takes the lease of a session folder (FAILED_PRECONDITION naming a live owner).
+  absl::StatusOr<std::shared_ptr<SessionLease>> TakeLease(const std::string& robot_id) const;
+  void ReleaseLease(const std::string& robot_id);
 };
 
 }  // namespace rim::server

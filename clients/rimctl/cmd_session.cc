@@ -38,6 +38,7 @@ void PrintSession(const rim::v1::SessionInfo& s, bool with_config, std::ostream&
       << "accepted frames: " << s.accepted_frames() << "\n"
       << "rejected frames: " << s.rejected_frames() << "\n"
       << "integrated frames: " << s.integrated_frames() << "\n"
+      << "map frames: " << s.map_frames() << "\n"
       << "queue depth: " << s.queue_depth() << "\n"
       << "iterations per frame: " << s.iterations_per_frame() << "\n"
       << "map version: " << s.map_version() << "\n"

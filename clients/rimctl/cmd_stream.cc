@@ -14,7 +14,8 @@
 namespace rim::rimctl {
 namespace {
 
-constexpr char kStreamUsage[] = R"(usage: rimctl stream ROBOT_ID DATASET [--rate HZ] [--frames A:B]
+constexpr char kStreamUsage[] =
+    R"(usage: rimctl stream ROBOT_ID DATASET [--rate HZ] [--frames A:B] [--retries N]
 
 Streams posed scans into the session ROBOT_ID and waits until every scan is integrated (trained).
 DATASET is a dataset folder in any layout rim reads (KITTI, PLY frames, PCD frames, 7-Scenes,
@@ -24,10 +25,14 @@ defaults: 100 frames, seed 1, 1 m steps, 1800 LiDAR columns, no noise, no walker
 
   --rate HZ      send at most HZ scans per second (default: as fast as the server takes them)
   --frames A:B   only frames A (inclusive) to B (exclusive); either end may be left out
+  --retries N    when the stream breaks (server, proxy or connection gone), open a new one up to
+                 N times, a second apart, and send again every scan not yet integrated; the
+                 server skips those it had accepted (default 3; 0: give up at once)
 
 Progress goes to stderr (a live bar on a terminal, a line per 10% otherwise). The last line on
 stdout reads "stream ROBOT_ID: sent: N, accepted: N, integrated: N, rejected: N, ...". Scan
-sequence numbers are the frame indices. Exit 4 when any scan was rejected (reasons on stderr).
+sequence numbers are the frame indices, so a drive resumed later with --frames A: keeps them
+increasing, as retries need. Exit 4 when any scan was rejected (reasons on stderr).
 )";
 
 constexpr size_t kMaxRejectionsShown = 20;
@@ -70,8 +75,9 @@ void PrintSummary(const std::string& robot, const StreamSummary& summary, const 
 }  // namespace
 
 int RunStream(const std::vector<std::string>& words, const Io& io) {
-  auto args = Args::Parse(
-      words, WithGlobalFlags({{"rate", FlagKind::kValue}, {"frames", FlagKind::kValue}}));
+  auto args = Args::Parse(words, WithGlobalFlags({{"rate", FlagKind::kValue},
+                                                  {"frames", FlagKind::kValue},
+                                                  {"retries", FlagKind::kValue}}));
   if (!args.ok()) {
     return UsageError(io, "stream", std::string(args.status().message()), kStreamUsage);
   }
@@ -84,6 +90,10 @@ int RunStream(const std::vector<std::string>& words, const Io& io) {
   auto rate = args->GetDouble("rate", 0, 0, 1e6);
   if (!rate.ok())
     return UsageError(io, "stream", std::string(rate.status().message()), kStreamUsage);
+  auto retries = args->GetDouble("retries", 3, 0, 1000);
+  if (!retries.ok() || *retries != double(int(*retries)))
+    return UsageError(io, "stream", "--retries: expected a whole number in [0, 1000]",
+                      kStreamUsage);
   FrameRange range;
   if (args->Has("frames")) {
     auto parsed = ParseFrameRange(args->Get("frames"));
@@ -109,6 +119,7 @@ int RunStream(const std::vector<std::string>& words, const Io& io) {
   StreamOptions options;
   options.rate_hz = *rate;
   options.first_sequence = uint64_t(first);
+  options.max_retries = int(*retries);
   options.on_ack = [&](const rim::v1::ScanAck& ack) { progress.OnAck(ack); };
   options.on_sent = [&](uint64_t sent) { progress.OnSent(sent); };
   long next = first;
@@ -125,6 +136,9 @@ int RunStream(const std::vector<std::string>& words, const Io& io) {
       options);
   progress.Finish();
   if (!summary.ok()) return Fail(io, summary.status());
+  if (summary->retries > 0)
+    io.err << "the stream broke and was opened again " << summary->retries << " time(s); "
+           << summary->duplicates << " resent scan(s) had been accepted before\n";
 
   PrintSummary(robot, *summary, io);
   return summary->rejected > 0 ? kExitRejected : kExitOk;

@@ -75,6 +75,8 @@ struct StreamSummary {
   std::vector<Rejection> rejections;
   uint64_t map_version = 0;  // the newest map version an ack reported
   double seconds = 0;        // from the first write to the last ack
+  int retries = 0;           // streams opened again after a break (StreamOptions::max_retries)
+  uint64_t duplicates = 0;   // resent scans the server had accepted before
 };
 
 struct StreamOptions {
@@ -87,6 +89,14 @@ struct StreamOptions {
   std::function<void(const rim::v1::ScanAck&)> on_ack;
   // Called after each scan is written, with the number written so far (writer thread).
   std::function<void(uint64_t sent)> on_sent;
+  // When the stream breaks (UNAVAILABLE, CANCELLED, INTERNAL, UNKNOWN or ABORTED: the server,
+  // the proxy or the connection went away), open a new stream, up to this many times,
+  // `retry_backoff` apart, and send again every scan without its final ack, marked Scan.resend: the
+  // server acknowledges the ones it had accepted (durable) without taking them twice, so nothing is
+  // lost or doubled. Behind a proxy the new stream may reach another replica, which takes the
+  // session over. Needs scan sequences that increase across the robot's streams. 0: no retries.
+  int max_retries = 0;
+  std::chrono::milliseconds retry_backoff{1000};
 };
 
 // Fills *scan with the next scan to send and returns true, or returns false at the end. The

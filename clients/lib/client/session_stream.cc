@@ -1,10 +1,16 @@
-// SessionHandle::Stream: one StreamScans call. The calling thread writes scans (paced by rate_hz
-// and by gRPC flow control, which is how the server's backpressure reaches the robot); a reader
-// thread counts acks. The server ends the stream once the client has half-closed and every
-// accepted scan has its INTEGRATED (or training-failure REJECTED) ack, so reading to the end is
-// exactly "wait for all scans to be integrated".
+// SessionHandle::Stream: StreamScans calls. The calling thread writes scans (paced by rate_hz and
+// by gRPC flow control, which is how the server's backpressure reaches the robot); a reader
+// thread counts acks. The server ends a stream once the client has half-closed and every accepted
+// scan has its INTEGRATED (or training-failure REJECTED) ack, so reading to the end is exactly
+// "wait for all scans to be integrated".
+//
+// Retries (StreamOptions::max_retries): every scan is kept until its final ack. When a stream
+// breaks, a new one sends the kept scans again, in order and marked `resend`, then goes on with
+// the source. The summary counts each sequence once, however many times it was sent.
 #include <algorithm>
+#include <map>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
@@ -13,78 +19,155 @@
 #include "client/wire.h"
 
 namespace rim {
+namespace {
+
+// How a broken stream ends: the server or the connection gone (UNAVAILABLE), or a proxy that
+// reset the stream when the replica behind it died (CANCELLED: HTTP/2 RST_STREAM CANCEL, INTERNAL,
+// UNKNOWN). This client never cancels its own streams.
+bool Retryable(grpc::StatusCode code) {
+  return code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::INTERNAL ||
+         code == grpc::StatusCode::UNKNOWN || code == grpc::StatusCode::ABORTED ||
+         code == grpc::StatusCode::CANCELLED;
+}
+
+// A rejection that a later stream may undo: the server was going away or the session was moving
+// between replicas.
+bool RetryableRejection(int code) {
+  return code == int(grpc::StatusCode::UNAVAILABLE) ||
+         code == int(grpc::StatusCode::FAILED_PRECONDITION);
+}
+
+}  // namespace
 
 absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
                                                     const StreamOptions& options) const {
   client_internal::Connection& c = *connection_;
-  grpc::ClientContext context;
-  // No deadline: a stream lasts as long as the robot drives.
-  c.Prepare(&context, robot_id_, std::chrono::milliseconds(0));
-  auto stream = c.stub().StreamScans(&context);
   const auto start = std::chrono::steady_clock::now();
 
-  std::mutex mu;
+  std::mutex mu;  // guards everything below that the reader thread touches
   StreamSummary summary;
   auto last_ack = start;
-  std::thread reader([&] {
-    rim::v1::ScanAck ack;
-    while (stream->Read(&ack)) {
-      {
-        std::lock_guard<std::mutex> lock(mu);
-        last_ack = std::chrono::steady_clock::now();
-        summary.map_version = std::max(summary.map_version, ack.map_version());
-        switch (ack.state()) {
-          case rim::v1::ScanAck::ACCEPTED:
-            ++summary.accepted;
-            break;
-          case rim::v1::ScanAck::INTEGRATED:
-            ++summary.integrated;
-            break;
-          case rim::v1::ScanAck::REJECTED:
-            ++summary.rejected;
-            summary.rejections.push_back({ack.sequence(), ack.code(), ack.reason()});
-            break;
-          default:
-            break;
-        }
-      }
-      if (options.on_ack) options.on_ack(ack);
-    }
-  });
+  std::map<uint64_t, rim::v1::Scan> unfinished;  // sent, no final ack yet, by sequence
+  std::set<uint64_t> accepted, integrated;
+  std::map<uint64_t, StreamSummary::Rejection> rejected;
 
   absl::Status source_status;
-  uint64_t sent = 0;
-  for (;;) {
-    rim::v1::Scan scan;
-    absl::StatusOr<bool> more = next(&scan);
-    if (!more.ok()) {
-      source_status = more.status();
-      break;
-    }
-    if (!*more) break;
-    scan.set_robot_id(robot_id_);
-    scan.set_sequence(options.first_sequence + sent);
-    if (options.rate_hz > 0) {
-      std::this_thread::sleep_until(
-          start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                      std::chrono::duration<double>(double(sent) / options.rate_hz)));
-    }
-    // A failed write means the server ended the call; Finish says why.
-    if (!stream->Write(scan)) break;
-    ++sent;
+  bool source_done = false;
+  uint64_t from_source = 0;  // scans taken from the source so far
+  for (int attempt = 0;; ++attempt) {
+    grpc::ClientContext context;
+    // No deadline: a stream lasts as long as the robot drives.
+    c.Prepare(&context, robot_id_, std::chrono::milliseconds(0));
+    auto stream = c.stub().StreamScans(&context);
+    std::thread reader([&] {
+      rim::v1::ScanAck ack;
+      while (stream->Read(&ack)) {
+        {
+          std::lock_guard<std::mutex> lock(mu);
+          last_ack = std::chrono::steady_clock::now();
+          summary.map_version = std::max(summary.map_version, ack.map_version());
+          const uint64_t seq = ack.sequence();
+          switch (ack.state()) {
+            case rim::v1::ScanAck::ACCEPTED:
+              accepted.insert(seq);
+              if (ack.duplicate()) ++summary.duplicates;
+              break;
+            case rim::v1::ScanAck::INTEGRATED:
+              accepted.insert(seq);
+              integrated.insert(seq);
+              unfinished.erase(seq);
+              break;
+            case rim::v1::ScanAck::REJECTED:
+              rejected[seq] = {seq, ack.code(), ack.reason()};
+              // Kept for the next stream when one may undo it; final otherwise.
+              if (!(options.max_retries > 0 && RetryableRejection(ack.code())))
+                unfinished.erase(seq);
+              break;
+            default:
+              break;
+          }
+        }
+        if (options.on_ack) options.on_ack(ack);
+      }
+    });
+
+    // First what an earlier stream left without a final ack, then the source.
+    std::vector<rim::v1::Scan> resend;
     {
       std::lock_guard<std::mutex> lock(mu);
-      summary.sent = sent;
+      for (auto& [seq, scan] : unfinished) {
+        resend.push_back(scan);
+        resend.back().set_resend(true);
+        rejected.erase(seq);  // decided again by this stream
+      }
     }
-    if (options.on_sent) options.on_sent(sent);
+    bool write_failed = false;
+    for (const rim::v1::Scan& scan : resend) {
+      if (!stream->Write(scan)) {
+        write_failed = true;
+        break;
+      }
+    }
+    while (!write_failed && !source_done) {
+      rim::v1::Scan scan;
+      absl::StatusOr<bool> more = next(&scan);
+      if (!more.ok()) {
+        source_status = more.status();
+        source_done = true;
+        break;
+      }
+      if (!*more) {
+        source_done = true;
+        break;
+      }
+      scan.set_robot_id(robot_id_);
+      scan.set_sequence(options.first_sequence + from_source);
+      if (options.rate_hz > 0) {
+        std::this_thread::sleep_until(
+            start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                        std::chrono::duration<double>(double(from_source) / options.rate_hz)));
+      }
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        unfinished[scan.sequence()] = scan;
+      }
+      ++from_source;
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        summary.sent = from_source;
+      }
+      // A failed write means the server ended the call; Finish says why. The scan stays in
+      // `unfinished` for a retry.
+      if (!stream->Write(scan)) {
+        write_failed = true;
+        break;
+      }
+      if (options.on_sent) options.on_sent(from_source);
+    }
+    stream->WritesDone();
+    reader.join();
+    const grpc::Status status = stream->Finish();
+    bool again = false;
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      again = attempt < options.max_retries && source_status.ok() &&
+              (!status.ok() ? Retryable(status.error_code()) : !source_done || !unfinished.empty());
+    }
+    if (!again) {
+      std::lock_guard<std::mutex> lock(mu);
+      summary.accepted = accepted.size();
+      summary.integrated = integrated.size();
+      summary.rejected = rejected.size();
+      summary.rejections.clear();
+      for (auto& [seq, r] : rejected) summary.rejections.push_back(r);
+      summary.seconds = std::chrono::duration<double>(last_ack - start).count();
+      if (!source_status.ok()) return source_status;
+      if (!status.ok()) return c.Error(status, absl::StrCat("StreamScans ", robot_id_));
+      return summary;
+    }
+    ++summary.retries;
+    std::this_thread::sleep_for(options.retry_backoff);
   }
-  stream->WritesDone();
-  reader.join();
-  const grpc::Status status = stream->Finish();
-  summary.seconds = std::chrono::duration<double>(last_ack - start).count();
-  if (!source_status.ok()) return source_status;
-  if (!status.ok()) return c.Error(status, absl::StrCat("StreamScans ", robot_id_));
-  return summary;
 }
 
 absl::StatusOr<StreamSummary> SessionHandle::Stream(const std::vector<PosedScan>& scans,
