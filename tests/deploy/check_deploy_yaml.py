@@ -1,13 +1,14 @@
 #!/usr/bin/python3
 """Checks rim's deployment assets under deploy/ for the mistakes that only show up at deploy time.
 
-- Every YAML file under deploy/ parses (and the envoy.yaml embedded in a ConfigMap).
+- Every YAML file under deploy/ parses.
 - Kubernetes manifests (deploy/k8s/): known kinds with their apiVersions; selectors that match pod
   labels; Service, probe and ServiceMonitor ports that exist on the containers they point at; the
-  rim StatefulSet's headless Service, volume claim for /data, GPU limit, gRPC health probes and a
-  grace period that leaves time to save sessions after the preStop pause; the Envoy config's
-  HTTP/2 listener, STRICT_DNS ring-hash cluster of every StatefulSet pod, gRPC health checks and
-  hashing on the x-robot-id header.
+  rim StatefulSet's headless Service, shared ReadWriteMany volume at /data with shared sessions
+  on, GPU limit, gRPC health probes and a grace period that leaves time to save sessions after
+  the preStop pause; HAProxy's config (deploy/haproxy/haproxy.cfg, the ConfigMap kustomize
+  generates from it): HTTP/2 front and servers, `balance hdr(x-robot-id)` on a consistent ring,
+  health checks, one server per StatefulSet pod, named by the proxy Deployment's environment.
 - Compose (deploy/compose.yaml), Prometheus and Grafana provisioning agree with each other: mounted
   files exist, the scrape target is the rim service's metrics port, the dashboard's datasource uid
   is the provisioned one.
@@ -368,7 +369,9 @@ def check_compose(docs, scrape_targets, datasource_url, dashboard_dir):
 API_VERSIONS = {
     "Namespace": "v1", "ConfigMap": "v1", "Service": "v1", "StatefulSet": "apps/v1",
     "Deployment": "apps/v1", "ServiceMonitor": "monitoring.coreos.com/v1",
+    "PersistentVolumeClaim": "v1",
 }
+HAPROXY = os.path.join(DEPLOY, "haproxy")
 
 
 def matches(selector, labels):
@@ -430,15 +433,24 @@ def check_rim_statefulset(sts, objects):
               "must be headless (clusterIP: None)")
         check(matches(svc["spec"].get("selector", {}), labels),
               f"{name}: headless Service selector does not match its pods")
-    claims = {c["metadata"]["name"]: c for c in spec.get("volumeClaimTemplates", [])}
-    check(claims, f"{name}: needs volumeClaimTemplates for /data")
-    for c in claims.values():
-        check(c.get("spec", {}).get("resources", {}).get("requests", {}).get("storage"),
-              f"{name}: claim {c['metadata']['name']} requests no storage")
+    # One data root for every replica: a ReadWriteMany claim (sessions move between replicas).
+    check(not spec.get("volumeClaimTemplates"),
+          f"{name}: replicas share one volume; volumeClaimTemplates give each its own")
+    shared = {}
+    for v in pod.get("volumes", []):
+        claim = v.get("persistentVolumeClaim", {}).get("claimName")
+        pvc = objects.get(("PersistentVolumeClaim", claim))
+        if claim and check(pvc is not None, f"{name}: volume {v['name']} uses missing "
+                           f"PersistentVolumeClaim {claim}"):
+            shared[v["name"]] = pvc
+            check("ReadWriteMany" in pvc.get("spec", {}).get("accessModes", []),
+                  f"{name}: claim {claim} must be ReadWriteMany (every replica mounts it)")
+            check(pvc.get("spec", {}).get("resources", {}).get("requests", {}).get("storage"),
+                  f"{name}: claim {claim} requests no storage")
     server = pod["containers"][0]
-    check(any(m["mountPath"] == "/data" and m["name"] in claims
+    check(any(m["mountPath"] == "/data" and m["name"] in shared
               for m in server.get("volumeMounts", [])),
-          f"{name}: /data must be mounted from a volumeClaimTemplate")
+          f"{name}: /data must be mounted from the shared PersistentVolumeClaim")
     limits = server.get("resources", {}).get("limits", {})
     check(str(limits.get("nvidia.com/gpu")) == "1", f"{name}: needs limit nvidia.com/gpu: 1")
     grpc_port = container_port(pod, "grpc")
@@ -472,6 +484,13 @@ def check_rim_statefulset(sts, objects):
                 cm = objects.get(("ConfigMap", v["configMap"]["name"]), {})
                 found = os.path.basename(config_path) in cm.get("data", {})
         check(found, f"{name}: --config {config_path} is not a key of a mounted ConfigMap")
+        conf = ""
+        for (kind, _), o in objects.items():
+            if kind == "ConfigMap":
+                conf += o.get("data", {}).get(os.path.basename(config_path), "")
+        check("--shared-sessions" in config_arg or
+              re.search(r"^\s*shared[_-]sessions\s*=\s*true\s*$", conf, re.M),
+              f"{name}: replicas on one volume need shared_sessions = true (or --shared-sessions)")
     return grpc_port
 
 
@@ -521,78 +540,103 @@ def find_key(node, key):
             yield from find_key(v, key)
 
 
-def check_envoy(objects, pods, sts, grpc_port):
+def generated_config_maps():
+    """The ConfigMaps that deploy/haproxy/kustomization.yaml generates, as kustomize would."""
+    out = {}
+    path = os.path.join(HAPROXY, "kustomization.yaml")
+    if not check(os.path.exists(path), "deploy/haproxy/kustomization.yaml missing"):
+        return out
+    with open(path) as f:
+        k = yaml.safe_load(f) or {}
+    for gen in k.get("configMapGenerator", []):
+        data = {}
+        for name in gen.get("files", []):
+            with open(os.path.join(HAPROXY, name)) as f:
+                data[os.path.basename(name)] = f.read()
+        check(gen.get("options", {}).get("disableNameSuffixHash"),
+              f"deploy/haproxy: ConfigMap {gen.get('name')} needs disableNameSuffixHash (the "
+              "Deployment names it)")
+        out[("ConfigMap", gen.get("name"))] = {"kind": "ConfigMap", "apiVersion": "v1",
+                                                "metadata": {"name": gen.get("name")},
+                                                "data": data}
+    return out
+
+
+def check_haproxy(objects, pods, sts, grpc_port):
     configs = [(name, o) for (k, name), o in objects.items()
-               if k == "ConfigMap" and "envoy.yaml" in o.get("data", {})]
-    if not check(configs, "deploy/k8s: no ConfigMap with envoy.yaml"):
+               if k == "ConfigMap" and "haproxy.cfg" in o.get("data", {})]
+    if not check(configs, "deploy/k8s: no ConfigMap with haproxy.cfg"):
         return
     cm_name, cm = configs[0]
-    w = f"ConfigMap {cm_name} envoy.yaml"
-    try:
-        envoy = yaml.safe_load(cm["data"]["envoy.yaml"])
-    except yaml.YAMLError as e:
-        errors.append(f"{w}: does not parse: {e}")
+    w = "deploy/haproxy/haproxy.cfg"
+    text = cm["data"]["haproxy.cfg"]
+    lines = [ln.split("#")[0].strip() for ln in text.splitlines()]
+    lines = [ln for ln in lines if ln]
+    sections, current = {}, None
+    for ln in lines:
+        head = ln.split()[0]
+        if head in ("global", "defaults", "frontend", "backend", "listen", "resolvers"):
+            current = " ".join(ln.split()[:2])
+            sections[current] = []
+        elif current:
+            sections[current].append(ln)
+    fronts = {k: v for k, v in sections.items() if k.startswith("frontend")}
+    backs = {k: v for k, v in sections.items() if k.startswith("backend")}
+    grpc_front = [v for v in fronts.values() if any("proto h2" in ln for ln in v if
+                                                     ln.startswith("bind"))]
+    check(grpc_front, f"{w}: no frontend binds with `proto h2` (gRPC is HTTP/2)")
+    if not check(len(backs) == 1, f"{w}: expected one backend, got {sorted(backs)}"):
         return
+    back = list(backs.values())[0]
+    check("balance hdr(x-robot-id)" in back, f"{w}: backend must `balance hdr(x-robot-id)`")
+    check("hash-type consistent" in back, f"{w}: backend needs `hash-type consistent`")
+    defaults = " ".join(ln for ln in back if ln.startswith("default-server"))
+    servers = [ln.split() for ln in back if ln.startswith("server ")]
+    for srv in servers:
+        opts = " ".join(srv[3:]) + " " + defaults
+        check(" proto h2" in " " + opts, f"{w}: server {srv[1]} must speak h2 (proto h2)")
+        check(re.search(r"(^|\s)check(\s|$)", opts), f"{w}: server {srv[1]} has no health check")
+        check("id" in srv, f"{w}: server {srv[1]} needs a fixed id (its place on the ring)")
 
-    # The Deployment that runs it: mounts the ConfigMap and exposes the listener's port.
+    # The Deployment that runs it: mounts the ConfigMap, exposes the front port, and names one
+    # replica per server line.
     deployments = [(wn, pod) for wn, (_, pod) in pods.items() if wn.startswith("Deployment ") and
                    any(v.get("configMap", {}).get("name") == cm_name for v in pod.get("volumes", []))]
-    check(deployments, f"{w}: no Deployment mounts ConfigMap {cm_name}")
-
-    resources = envoy.get("static_resources", {})
-    listeners = resources.get("listeners", [])
-    check(listeners, f"{w}: no listener")
-    routed = set()
-    for listener in listeners:
-        port = listener.get("address", {}).get("socket_address", {}).get("port_value")
-        for wn, pod in deployments:
-            check(container_port(pod, port) is not None,
-                  f"{w}: listener port {port} is not a container port of {wn}")
-        managers = [f.get("typed_config", {}) for chain in listener.get("filter_chains", [])
-                    for f in chain.get("filters", [])
-                    if f.get("name") == "envoy.filters.network.http_connection_manager"]
-        check(managers, f"{w}: listener {listener.get('name')} has no http_connection_manager")
-        for hcm in managers:
-            check(hcm.get("codec_type") == "HTTP2" or
-                  (hcm.get("codec_type", "AUTO") == "AUTO" and "http2_protocol_options" in hcm),
-                  f"{w}: listener {listener.get('name')} must speak HTTP/2")
-            for route in find_key(hcm.get("route_config", {}), "route"):
-                cluster = route.get("cluster")
-                routed.add(cluster)
-                headers = [h.get("header", {}).get("header_name", "").lower()
-                           for h in route.get("hash_policy", [])]
-                check("x-robot-id" in headers,
-                      f"{w}: route to {cluster} must hash on header x-robot-id")
-    clusters = {c.get("name"): c for c in resources.get("clusters", [])}
-    check(routed, f"{w}: no route")
-    for name in routed:
-        c = clusters.get(name)
-        if not check(c is not None, f"{w}: route to undefined cluster {name}"):
+    if not check(deployments, f"{w}: no Deployment mounts ConfigMap {cm_name}"):
+        return
+    wn, pod = deployments[0]
+    env = {e["name"]: str(e.get("value", "")) for c in pod.get("containers", [])
+           for e in c.get("env", [])}
+    bind = env.get("RIM_PROXY_BIND", "")
+    check(bind and container_port(pod, int(bind.rsplit(":", 1)[1])) is not None,
+          f"{wn}: RIM_PROXY_BIND {bind!r} is not a container port")
+    if sts is None:
+        return
+    sts_name = sts["metadata"]["name"]
+    ns = sts["metadata"].get("namespace", "default")
+    svc = sts["spec"].get("serviceName")
+    replicas = int(sts["spec"].get("replicas", 1))
+    check(len(servers) == replicas, f"{w}: {len(servers)} servers for a StatefulSet of "
+          f"{replicas} replicas")
+    for i, srv in enumerate(servers):
+        var = re.fullmatch(r'"?\$\{(\w+)\}"?', srv[2])
+        if not check(var, f"{w}: server {srv[1]} address must come from the environment"):
             continue
-        cw = f"{w}: cluster {name}"
-        check(c.get("type") == "STRICT_DNS", f"{cw}: type must be STRICT_DNS")
-        check(c.get("lb_policy") == "RING_HASH", f"{cw}: lb_policy must be RING_HASH")
-        check(any("grpc_health_check" in hc for hc in c.get("health_checks", [])),
-              f"{cw}: needs a grpc_health_check")
-        check(list(find_key(c, "http2_protocol_options")),
-              f"{cw}: upstream must be HTTP/2 (gRPC)")
-        addresses = [a for a in find_key(c.get("load_assignment", {}), "socket_address")]
-        if sts is None:
-            continue
-        sts_name = sts["metadata"]["name"]
-        ns = sts["metadata"].get("namespace", "default")
-        svc = sts["spec"].get("serviceName")
-        want = {f"{sts_name}-{i}.{svc}.{ns}.svc.cluster.local"
-                for i in range(int(sts["spec"].get("replicas", 1)))}
-        got = {a.get("address") for a in addresses}
-        headless = f"{svc}.{ns}.svc.cluster.local"
-        check(got == want or got == {headless},
-              f"{cw}: endpoints {sorted(got)} must be the StatefulSet's pods via the headless "
-              f"Service: {sorted(want)} (or {headless})")
-        for a in addresses:
-            check(a.get("port_value") == grpc_port,
-                  f"{cw}: endpoint {a.get('address')} port {a.get('port_value')} is not the "
-                  f"rim gRPC port {grpc_port}")
+        want = f"{sts_name}-{i}.{svc}.{ns}.svc.cluster.local:{grpc_port}"
+        check(env.get(var.group(1)) == want, f"{wn}: {var.group(1)} is {env.get(var.group(1))!r}, "
+              f"expected the StatefulSet's pod {want}")
+    haproxy = shutil.which("haproxy") or "/usr/sbin/haproxy"
+    if os.access(haproxy, os.X_OK):
+        with tempfile.NamedTemporaryFile("w", suffix=".cfg") as f:
+            f.write(text)
+            f.flush()
+            run_env = dict(os.environ, **env)
+            run_env.update(RIM_PROXY_BIND="127.0.0.1:50051", RIM_PROXY_STATS_BIND="127.0.0.1:8404")
+            out = subprocess.run([haproxy, "-c", "-f", f.name], env=run_env,
+                                 capture_output=True, text=True)
+            check(out.returncode == 0, f"{w}: haproxy -c failed: {out.stdout}{out.stderr}")
+    else:
+        print("check_deploy_yaml: haproxy not found, `haproxy -c` not run")
 
 
 def check_kubernetes(docs, rim_job):
@@ -612,9 +656,13 @@ def check_kubernetes(docs, rim_job):
             check((kind, meta.get("name")) not in objects, f"{where}: defined twice")
             objects[(kind, meta.get("name"))] = d
 
+    objects.update(generated_config_maps())
     kustomization = os.path.join(K8S, "kustomization.yaml")
     if check(kustomization in docs, "deploy/k8s/kustomization.yaml missing"):
-        listed = set(docs[kustomization][0].get("resources", []))
+        resources = docs[kustomization][0].get("resources", [])
+        check("../haproxy" in resources, "kustomization.yaml must include ../haproxy (the "
+              "ConfigMap generated from haproxy.cfg)")
+        listed = {r for r in resources if not r.startswith("../")}
         present = {os.path.basename(p) for p in docs if p.startswith(K8S + os.sep)} - {
             "kustomization.yaml"}
         check(listed == present, f"kustomization.yaml resources {sorted(listed)} differ from the "
@@ -624,6 +672,12 @@ def check_kubernetes(docs, rim_job):
         if kubectl:  # kustomize runs offline; no cluster needed
             out = subprocess.run([kubectl, "kustomize", K8S], capture_output=True, text=True)
             check(out.returncode == 0, f"kubectl kustomize deploy/k8s failed: {out.stderr.strip()}")
+            if out.returncode == 0:
+                built = {(d.get("kind"), d.get("metadata", {}).get("name")): d
+                         for d in yaml.safe_load_all(out.stdout) if d}
+                for key, cm in generated_config_maps().items():
+                    check(built.get(key, {}).get("data") == cm["data"],
+                          f"kubectl kustomize: {key[1]} differs from deploy/haproxy's files")
         else:
             print("check_deploy_yaml: kubectl not found, `kubectl kustomize` not run")
 
@@ -642,7 +696,7 @@ def check_kubernetes(docs, rim_job):
     sts_list = [o for (k, _), o in objects.items() if k == "StatefulSet"]
     sts = sts_list[0] if sts_list else None
     grpc_port = check_rim_statefulset(sts, objects) if sts else None
-    check_envoy(objects, pods, sts, grpc_port)
+    check_haproxy(objects, pods, sts, grpc_port)
 
 
 def main():
