@@ -705,6 +705,38 @@ TEST(ServerCrashTest, KillNineLosesNoAcceptedScan) {
     EXPECT_EQ(stub->CreateSession(&ctx, create, &info).error_code(),
               grpc::StatusCode::ALREADY_EXISTS);
   }
+  {
+    // The client resends what it had no INTEGRATED ack for, marked `resend`, plus one new scan:
+    // the restored session knows the highest sequence it accepted (from the log), acknowledges
+    // 4 and 5 as duplicates without integrating them again, and takes 6.
+    grpc::ClientContext ctx;
+    auto stream = stub->StreamScans(&ctx);
+    for (int i = 4; i <= kSent; ++i) {
+      rim::v1::Scan scan =
+          MakeScan(uint64_t(i), poses[i], testing_support::SimulateScan(scene, lidar, poses[i], i));
+      scan.set_robot_id("crashbot");
+      scan.set_resend(true);
+      ASSERT_TRUE(stream->Write(scan));
+    }
+    stream->WritesDone();
+    std::map<uint64_t, std::vector<std::pair<int, bool>>> acks;
+    rim::v1::ScanAck ack;
+    while (stream->Read(&ack)) acks[ack.sequence()].push_back({ack.state(), ack.duplicate()});
+    ASSERT_TRUE(stream->Finish().ok());
+    const std::vector<std::pair<int, bool>> duplicate = {{rim::v1::ScanAck::ACCEPTED, true},
+                                                         {rim::v1::ScanAck::INTEGRATED, true}};
+    const std::vector<std::pair<int, bool>> fresh = {{rim::v1::ScanAck::ACCEPTED, false},
+                                                     {rim::v1::ScanAck::INTEGRATED, false}};
+    EXPECT_EQ(acks[4], duplicate);
+    EXPECT_EQ(acks[5], duplicate);
+    EXPECT_EQ(acks[uint64_t(kSent)], fresh);
+    grpc::ClientContext get_ctx;
+    rim::v1::GetSessionRequest get;
+    get.set_robot_id("crashbot");
+    rim::v1::SessionInfo info;
+    ASSERT_TRUE(stub->GetSession(&get_ctx, get, &info).ok());
+    EXPECT_EQ(info.map_frames(), uint64_t(kSent + 1));  // 6 replayed + 1: none twice
+  }
   ASSERT_EQ(kill(pid, SIGTERM), 0);
   int wstatus = 0;
   waitpid(pid, &wstatus, 0);
