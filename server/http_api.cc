@@ -3,6 +3,8 @@
 #include <civetweb.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
 #include <climits>
 #include <filesystem>
 #include <fstream>
@@ -23,6 +25,8 @@ using nlohmann::json;
 
 constexpr size_t kMaxStaticBytes = size_t(64) << 20;
 constexpr const char* kApiPrefix = "/api/v1/sessions";
+// How long one tile listing may spend meshing before it answers with what it has.
+constexpr double kListBudgetSeconds = 2.0;
 
 std::string ContentType(const std::string& path) {
   static const std::pair<const char*, const char*> kTypes[] = {
@@ -262,23 +266,46 @@ HttpResponse HttpApi::Tiles(const std::string& robot, const std::string& query) 
   if (!session.ok()) return FromStatus(session.status());
   Session& s = **session;
   const uint64_t map_version = s.mapper().map_version();
+  // Oldest versions first, a whole version at a time, until the budget is spent: a listing of a
+  // large map that changed everywhere answers in about kListBudgetSeconds, and `next_since`
+  // tells the caller where to go on (every tile at or below it has been listed).
+  std::vector<TileInfo> listed = s.mapper().ListTiles(*since);
+  std::stable_sort(listed.begin(), listed.end(),
+                   [](const TileInfo& a, const TileInfo& b) { return a.version < b.version; });
+  const auto start = std::chrono::steady_clock::now();
+  uint64_t next_since = *since;
+  bool complete = true;
   json tiles = json::array();
-  for (const TileInfo& tile : s.mapper().ListTiles(*since)) {
-    // Meshed and encoded now unless cached at this version: the counts are those of the bytes
-    // that the tile's URL serves.
-    auto encoded = s.tiles().Get(s.mapper(), tile);
-    if (!encoded.ok()) return FromStatus(encoded.status());
-    const uint64_t version = (*encoded)->version;
-    tiles.push_back({{"key", json::array({tile.key.x(), tile.key.y(), tile.key.z()})},
-                     {"version", version},
-                     {"bounds", {{"min", Vec(tile.min_m)}, {"max", Vec(tile.max_m)}}},
-                     {"vertex_count", (*encoded)->vertex_count},
-                     {"face_count", (*encoded)->face_count},
-                     {"bytes", (*encoded)->draco.size()},
-                     {"url", absl::StrCat(kApiPrefix, "/", robot, "/tiles/", TileName(tile.key),
-                                          ".drc?v=", version)}});
+  for (size_t i = 0; i < listed.size();) {
+    if (i > 0 && std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >
+                     kListBudgetSeconds) {
+      complete = false;
+      break;
+    }
+    const uint64_t group = listed[i].version;
+    for (; i < listed.size() && listed[i].version == group; ++i) {
+      const TileInfo& tile = listed[i];
+      // Meshed and encoded now unless cached at this version: the counts are those of the bytes
+      // that the tile's URL serves.
+      auto encoded = s.tiles().Get(s.mapper(), tile);
+      if (!encoded.ok()) return FromStatus(encoded.status());
+      const uint64_t version = (*encoded)->version;
+      tiles.push_back({{"key", json::array({tile.key.x(), tile.key.y(), tile.key.z()})},
+                       {"version", version},
+                       {"bounds", {{"min", Vec(tile.min_m)}, {"max", Vec(tile.max_m)}}},
+                       {"vertex_count", (*encoded)->vertex_count},
+                       {"face_count", (*encoded)->face_count},
+                       {"bytes", (*encoded)->draco.size()},
+                       {"url", absl::StrCat(kApiPrefix, "/", robot, "/tiles/", TileName(tile.key),
+                                            ".drc?v=", version)}});
+    }
+    next_since = group;
   }
-  return Json(200, json{{"robot_id", robot}, {"map_version", map_version}, {"tiles", tiles}});
+  return Json(200, json{{"robot_id", robot},
+                        {"map_version", map_version},
+                        {"tiles", tiles},
+                        {"complete", complete},
+                        {"next_since", next_since}});
 }
 
 HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& name) const {

@@ -320,6 +320,9 @@ async function pollTiles(s) {
     s.since = Math.max(s.since, info.version);
     if (t.wanted) enqueueTile(t);
   }
+  // A listing cut short by the server's time budget lists every tile up to `next_since` and
+  // perhaps some of the next version: go on from `next_since`, so none is skipped.
+  if (typeof body.next_since === 'number') s.since = body.next_since;
   pumpTiles();
 }
 

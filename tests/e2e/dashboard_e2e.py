@@ -220,6 +220,8 @@ def check_api(server: Server, build: str, f: Failures) -> None:
         f.check(same == len(http_tiles),
                 f"{robot}: {same}/{len(http_tiles)} tiles byte-identical to GetMeshTiles")
         newest = max(t["version"] for t in listed["tiles"])
+        f.check(listed.get("complete") is True and listed.get("next_since") == newest,
+                f"{robot}: a complete listing says so, next_since {listed.get('next_since')}")
         f.check(get_json(f"{url}/api/v1/sessions/{robot}/tiles?since={newest}")["tiles"] == [],
                 f"{robot}: nothing newer than version {newest}")
 
