@@ -253,8 +253,10 @@ HttpResponse HttpApi::Sessions() const {
   return Json(200, json{{"server_version", kRimVersion}, {"sessions", std::move(list)}});
 }
 
+// The dashboard reads the sessions open on this replica (Find): a look at a saved session never
+// opens it here, even with --shared-sessions.
 HttpResponse HttpApi::SessionEntry(const std::string& robot) const {
-  auto session = sessions_->Get(robot);
+  auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   return Json(200, SessionJson(**session));
 }
@@ -262,7 +264,7 @@ HttpResponse HttpApi::SessionEntry(const std::string& robot) const {
 HttpResponse HttpApi::Tiles(const std::string& robot, const std::string& query) const {
   auto since = SinceParam(query, "map version");
   if (!since.ok()) return FromStatus(since.status());
-  auto session = sessions_->Get(robot);
+  auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   Session& s = **session;
   const uint64_t map_version = s.mapper().map_version();
@@ -313,7 +315,7 @@ HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& nam
   if (!ParseTileName(name, &key))
     return Error(404, absl::StrCat("no tile '", name.substr(0, 80),
                                    "': a tile is named KX_KY_KZ.drc by its sub-map key"));
-  auto session = sessions_->Get(robot);
+  auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   Session& s = **session;
   for (const TileInfo& tile : s.mapper().ListTiles(0)) {
@@ -333,7 +335,7 @@ HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& nam
 HttpResponse HttpApi::Trajectory(const std::string& robot, const std::string& query) const {
   auto since = SinceParam(query, "frame index");
   if (!since.ok()) return FromStatus(since.status());
-  auto session = sessions_->Get(robot);
+  auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   uint64_t next = 0;
   json positions = json::array();
