@@ -89,7 +89,10 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
     return absl::ResourceExhaustedError(absl::StrCat(
         "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
   if (options_.lease) {
-    if (absl::Status owned = options_.lease->Check(); !owned.ok()) return owned;
+    if (absl::Status owned = options_.lease->Check(); !owned.ok()) {
+      fenced_ = true;
+      return owned;
+    }
   }
   if (wal_) {
     // Durable before it counts as accepted: a crash after this point loses nothing (§5.3).
@@ -126,7 +129,10 @@ absl::Status Session::Checkpoint(const std::string& dir) {
   // A link planted in the session's folder since it was opened would redirect the save.
   if (absl::Status s = RefuseSymlinksUnder(dir); !s.ok()) return s;
   if (options_.lease) {
-    if (absl::Status owned = options_.lease->Check(); !owned.ok()) return owned;
+    if (absl::Status owned = options_.lease->Check(); !owned.ok()) {
+      fenced_ = true;
+      return owned;
+    }
   }
   absl::Status saved = mapper_->Save(dir, &frames);
   if (!saved.ok()) return saved;

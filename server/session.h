@@ -3,6 +3,7 @@
 // Submit(); they never train. Knows nothing of gRPC: acks go out through callbacks.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -139,6 +140,9 @@ class Session {
   // accepted (in this process, or before it: RestoreLastSequence). Clients number a robot's scans
   // increasingly; a client resending after a broken stream relies on this (Scan.resend).
   bool Accepted(uint64_t sequence) const;
+  // Another replica holds the session folder's lease now (a write found its token gone): this
+  // session writes nothing more, and the manager drops it (SessionManager::Get).
+  bool fenced() const { return fenced_; }
   void RestoreLastSequence(uint64_t sequence);
   // In a session folder: the highest accepted sequence at the last checkpoint.
   static constexpr const char* kSequenceFile = "sequence.rimf";
@@ -169,6 +173,7 @@ class Session {
   SessionStats stats_;
   // (map version after the frame, steady seconds when it was integrated), oldest first.
   std::deque<std::pair<uint64_t, double>> integrated_at_;
+  std::atomic<bool> fenced_{false};
   uint64_t last_sequence_ = 0;  // the highest accepted sequence, when has_sequence_
   bool has_sequence_ = false;
   std::deque<TrajectoryPoint> trajectory_;  // the last kTrajectoryLimit frames, oldest first

@@ -168,6 +168,25 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Find(const std::string&
 
 absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& robot_id) {
   auto found = Find(robot_id);
+  if (found.ok() && (*found)->fenced()) {
+    // Another replica took the session over: drop it here (what it still had queued was logged
+    // before the take-over, so the new owner has it), then answer as for any session held
+    // elsewhere.
+    std::shared_ptr<Session> gone;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      auto it = sessions_.find(robot_id);
+      if (it != sessions_.end() && it->second == *found) {
+        gone = std::move(it->second);
+        sessions_.erase(it);
+      }
+    }
+    if (gone) {
+      gone->Close();
+      ReleaseLease(robot_id);
+    }
+    found = absl::NotFoundError(absl::StrCat("no session for robot_id ", robot_id));
+  }
   if (found.ok() || !options_.take_over || found.status().code() != absl::StatusCode::kNotFound ||
       stopping_)
     return found;

@@ -157,6 +157,31 @@ TEST(SessionManagerSharingTest, OneReplicaAtATimeAndTakeOverOfWhatIsFree) {
   EXPECT_EQ(c.Get("robot_s").status().code(), absl::StatusCode::kNotFound);
 }
 
+TEST(SessionManagerSharingTest, AFencedReplicaStopsWritingAndDropsTheSession) {
+  const std::string data = testing_support::MakeTempDir("rim_shared_fenced");
+  SessionManager a(Replica(data, "rim-a"));
+  auto created = a.Create("robot_f", "", testing_support::SmallMapOverrides());
+  ASSERT_TRUE(created.ok()) << created.status();
+  ASSERT_TRUE((*created)->Submit(0, testing_support::GroundScan(0.0), nullptr).ok());
+  // a's lock is lost without a noticing (as a stale NFS lock would be): another replica makes the
+  // lease file anew and holds it.
+  const std::string dir = data + "/sessions/robot_f";
+  std::filesystem::remove(dir + "/LEASE");
+  auto b = SessionLease::Acquire(dir, "rim-b");
+  ASSERT_TRUE(b.ok()) << b.status();
+  const absl::Status refused = (*created)->Submit(1, testing_support::GroundScan(0.05), nullptr);
+  EXPECT_EQ(refused.code(), absl::StatusCode::kFailedPrecondition) << refused;
+  EXPECT_THAT(std::string(refused.message()), HasSubstr("fenced: rim-b"));
+  EXPECT_TRUE((*created)->fenced());
+  EXPECT_FALSE((*created)->Accepted(1));
+  created->reset();
+  // a's next call about it drops the session and names the owner.
+  const absl::Status now = a.Get("robot_f").status();
+  EXPECT_EQ(now.code(), absl::StatusCode::kFailedPrecondition) << now;
+  EXPECT_THAT(std::string(now.message()), HasSubstr("rim-b"));
+  EXPECT_TRUE(a.List().empty());
+}
+
 TEST(SessionManagerSharingTest, TheHighestSequenceSurvivesACheckpointThatEmptiesTheLog) {
   const std::string data = testing_support::MakeTempDir("rim_shared_sequence");
   {
