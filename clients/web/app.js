@@ -18,6 +18,9 @@ const MAX_TILE_FETCHES = 4;
 const API_TIMEOUT_MS = 15000;
 const TILE_TIMEOUT_MS = 60000;
 const MAX_ERRORS = 200;  // distinct messages kept; repeats are counted
+// A poll that got no answer (timeout, network) is retried at the next round; only this many in a
+// row for the same request count as an error (a busy server answers late, a dead one never).
+const MAX_QUIET_RETRIES = 5;
 const AUTO_FIT_MS = 250; // while the first tiles load, the view is refit at most this often
 const DECODER_DIR = new URL('vendor/three/addons/libs/draco/', document.baseURI).href;
 
@@ -69,6 +72,8 @@ class TileModel {
 const state = {
   errors: [],            // distinct messages, oldest first
   errorCounts: new Map(),
+  retriedPolls: 0,       // polls that got no answer and were retried quietly
+  quietFailures: new Map(),  // request kind -> failures in a row
   polls: 0,              // completed poll rounds
   okPolls: 0,            // rounds whose sessions list came back
   serverVersion: null,
@@ -110,6 +115,23 @@ function recordError(message) {
   panelDirty = true;
 }
 
+// A poll request failed. No answer at all (status 0: timeout or network) is retried at the next
+// round without an error, unless it keeps happening; an answer that is an error is recorded.
+function pollFailed(kind, text, error, onError) {
+  if (error.status === 0) {
+    const inRow = (state.quietFailures.get(kind) || 0) + 1;
+    state.quietFailures.set(kind, inRow);
+    state.retriedPolls++;
+    console.warn(`rim dashboard: ${text} (retrying)`);
+    if (inRow < MAX_QUIET_RETRIES) return;
+  }
+  onError(text);
+}
+
+function pollSucceeded(kind) {
+  state.quietFailures.delete(kind);
+}
+
 function status() {
   if (state.errors.length > 0) return 'error';
   return state.okPolls > 0 ? 'ok' : 'starting';
@@ -133,7 +155,7 @@ function sessionView(s) {
   return v;
 }
 
-// window.rimDashboard: { status, errors, polls, sessions: { ROBOT: { tiles_loaded, faces,
+// window.rimDashboard: { status, errors, polls, retried_polls, sessions: { ROBOT: { tiles_loaded, faces,
 // vertices, pending, failed, map_version, trajectory_points } }, frame_ms: { median, p95 },
 // heap_bytes, color_mode, server_version, gpu: { renderer, antialias, geometries, draw_calls,
 // triangles (the last frame's) } }. Replaced (not mutated) on every poll and tile load.
@@ -150,6 +172,7 @@ function publish() {
     status: status(),
     errors: state.errors.slice(),
     polls: state.polls,
+    retried_polls: state.retriedPolls,
     sessions: out,
     frame_ms: viewer ? viewer.frameStats() : { median: null, p95: null },
     heap_bytes: performance.memory ? performance.memory.usedJSHeapSize : null,
@@ -220,10 +243,12 @@ async function apiJson(url) {
 
 // A failed request about one session. A 404 may only mean that the session closed since the
 // list was fetched: it is kept until the next list shows whether the session is still there.
-function sessionError(s, message, error) {
+// `kind` names a poll (retried quietly when unanswered: pollFailed), or is null for a tile.
+function sessionError(s, kind, message, error) {
   const text = `${message}: ${error.message}`;
   if (error.status === 404) s.deferred.push(text);
-  else recordError(text);
+  else if (kind === null) recordError(text);  // a tile that cannot be fetched: always shown
+  else pollFailed(`${kind} ${s.robot}`, text, error, recordError);
   noteAccess(error);
 }
 
@@ -254,10 +279,11 @@ async function pollRound() {
   try {
     list = await apiJson(API);
   } catch (e) {
-    recordError(`sessions list: ${e.message}`);
+    pollFailed('sessions', `sessions list: ${e.message}`, e, recordError);
     noteAccess(e);
     return;
   }
+  pollSucceeded('sessions');
   panel.setAuthProblem(null);
   state.okPolls++;
   state.serverVersion = list.server_version ?? null;
@@ -301,9 +327,10 @@ async function pollTiles(s) {
   try {
     body = await apiJson(`${API}/${encodeURIComponent(s.robot)}/tiles?since=${s.since}`);
   } catch (e) {
-    sessionError(s, `${s.robot}: tile list since version ${s.since}`, e);
+    sessionError(s, 'tiles', `${s.robot}: tile list since version ${s.since}`, e);
     return;
   }
+  pollSucceeded(`tiles ${s.robot}`);
   if (s.removed) return;
   s.mapVersion = Math.max(s.mapVersion, body.map_version || 0);
   for (const info of body.tiles || []) {
@@ -331,9 +358,10 @@ async function pollTrajectory(s) {
   try {
     body = await apiJson(`${API}/${encodeURIComponent(s.robot)}/trajectory?since=${s.trajectoryNext}`);
   } catch (e) {
-    sessionError(s, `${s.robot}: trajectory since frame ${s.trajectoryNext}`, e);
+    sessionError(s, 'trajectory', `${s.robot}: trajectory since frame ${s.trajectoryNext}`, e);
     return;
   }
+  pollSucceeded(`trajectory ${s.robot}`);
   if (s.removed) return;
   const positions = body.positions || [];
   viewer?.appendTrajectory(s.robot, positions);
@@ -393,7 +421,7 @@ async function loadTile(t) {
   } catch (e) {
     if (s.removed) return;
     t.failedVersion = version;
-    if (e instanceof FetchError) sessionError(s, what, e);
+    if (e instanceof FetchError) sessionError(s, null, what, e);
     else recordError(`${what}: ${e.message}`);  // the body was cut off
     return;
   }
