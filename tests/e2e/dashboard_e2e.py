@@ -39,6 +39,7 @@ from typing import Any, Dict, List, Optional, Tuple
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import cdp  # noqa: E402
+from failures import Failures  # noqa: E402
 
 import rim_client  # noqa: E402
 
@@ -131,16 +132,6 @@ def raw_request(port: int, data: bytes, timeout: float = 10.0) -> bytes:
 def status_of(reply: bytes) -> int:
     match = re.match(rb"HTTP/1\.[01] (\d{3})", reply)
     return int(match.group(1)) if match else -1
-
-
-class Failures:
-    def __init__(self) -> None:
-        self.items: List[str] = []
-
-    def check(self, ok: bool, what: str) -> None:
-        print(("ok   " if ok else "FAIL ") + what, flush=True)
-        if not ok:
-            self.items.append(what)
 
 
 def api_counts(url: str, token: Optional[str] = None) -> Dict[str, Tuple[int, int]]:
@@ -396,10 +387,7 @@ def main() -> int:
                 sys.stderr.write(log.read()[-5000:])
         shutil.rmtree(data, ignore_errors=True)
     check_tokens(build, f)
-    print(f"dashboard_e2e: {len(f.items)} failure(s)")
-    for item in f.items:
-        print("  -", item)
-    return 1 if f.items else 0
+    return f.report("dashboard_e2e")
 
 
 if __name__ == "__main__":

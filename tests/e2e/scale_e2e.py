@@ -38,6 +38,9 @@ import urllib.request
 from typing import Dict, List, Optional
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from failures import Failures  # noqa: E402
+
 ROOT = os.path.normpath(os.path.join(HERE, "..", ".."))
 ROBOTS = [f"robot_{i}" for i in range(6)]
 FRAMES = 30
@@ -95,16 +98,6 @@ class Replica:
 
     def alive(self) -> bool:
         return self.process.poll() is None
-
-
-class Failures:
-    def __init__(self) -> None:
-        self.items: List[str] = []
-
-    def check(self, ok: bool, what: str) -> None:
-        print(("ok   " if ok else "FAIL ") + what, flush=True)
-        if not ok:
-            self.items.append(what)
 
 
 def main() -> int:
@@ -300,10 +293,7 @@ def main() -> int:
                 with open(os.path.join(logs, name)) as log:
                     sys.stderr.write(f"---- {name} (tail)\n{log.read()[-3000:]}\n")
         shutil.rmtree(work, ignore_errors=True)
-    print(f"scale_e2e: {len(f.items)} failure(s)")
-    for item in f.items:
-        print("  -", item)
-    return 1 if f.items else 0
+    return f.report("scale_e2e")
 
 
 if __name__ == "__main__":
