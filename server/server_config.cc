@@ -1,5 +1,6 @@
 #include "server/server_config.h"
 
+#include <algorithm>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -63,6 +64,16 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
   } else if (name == "tls-client-ca") {
     c->tls_client_ca = value;
   } else if (name == "replica-id") {
+    // Written into session lease files and shown to other replicas: one printable word.
+    const bool ok = !value.empty() && value.size() <= 128 &&
+                    std::all_of(value.begin(), value.end(), [](char ch) {
+                      return absl::ascii_isalnum(ch) || ch == '_' || ch == '.' || ch == '-' ||
+                             ch == ':' || ch == '/';
+                    });
+    if (!ok)
+      return absl::InvalidArgumentError(
+          absl::StrCat("--replica-id: expected 1-128 characters of [A-Za-z0-9_.:/-], got '",
+                       value.substr(0, 80), "'"));
     c->replica_id = value;
   } else if (name == "shared-sessions") {
     if (value != "true" && value != "false")

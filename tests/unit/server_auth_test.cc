@@ -194,6 +194,20 @@ TEST(AuthTest, ExposureNeedsTokensOrInsecure) {
   EXPECT_TRUE(CheckExposure(*http_tokens).ok());
 }
 
+TEST(AuthTest, ReplicaFlags) {
+  auto shared = Parse({"--data-dir", "/d", "--shared-sessions", "--replica-id", "rim-0"});
+  ASSERT_TRUE(shared.ok()) << shared.status();
+  EXPECT_TRUE(shared->shared_sessions);
+  EXPECT_EQ(shared->replica_id, "rim-0");
+  EXPECT_THAT(shared->ToString(), HasSubstr("shared_sessions = true\n"));
+  // The id goes into lease files: no spaces, newlines or empty names.
+  for (const char* bad : {"", "a b", "rim\nowner=x", "r\tx"})
+    EXPECT_THAT(std::string(Parse({"--data-dir", "/d", "--replica-id", bad}).status().message()),
+                HasSubstr("--replica-id: expected"))
+        << bad;
+  EXPECT_FALSE(Parse({"--data-dir", "/d", "--shared-sessions=maybe"}).ok());
+}
+
 TEST(AuthTest, TlsFlagsGoTogether) {
   auto both =
       Parse({"--data-dir", "/d", "--tls-cert", "c", "--tls-key", "k", "--tls-client-ca", "ca"});
