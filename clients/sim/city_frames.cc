@@ -34,6 +34,7 @@ CityFrames::CityFrames(const CityFrameOptions& options) : state_(std::make_uniqu
   CityOptions city_options;
   city_options.seed = options.seed;
   city_options.walkers = options.walkers;
+  city_options.buildings = options.buildings;
   s.city = GenerateCity(city_options);
   s.poses = CityTrajectory(s.city, options.frames, options.step, kSensorHeight);
   s.lidar.columns = options.columns;

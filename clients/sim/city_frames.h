@@ -8,17 +8,19 @@
 #include <memory>
 
 #include "rim/base/scan.h"
+#include "sim/city.h"
 
 namespace rim::sim {
 
 struct CityFrameOptions {
   int frames = 100;
   uint64_t seed = 1;
-  double step = 1.0;   // metres between frames along the drive
-  int columns = 1800;  // LiDAR azimuth steps per revolution (64 beams)
-  double noise = 0.0;  // Gaussian range noise, standard deviation in metres
-  int walkers = 0;     // pedestrians on the sidewalks
-  int threads = 0;     // ray-casting threads; 0: all hardware threads
+  double step = 1.0;          // metres between frames along the drive
+  int columns = 1800;         // LiDAR azimuth steps per revolution (64 beams)
+  double noise = 0.0;         // Gaussian range noise, standard deviation in metres
+  int walkers = 0;            // pedestrians on the sidewalks
+  int threads = 0;            // ray-casting threads; 0: all hardware threads
+  BuildingOptions buildings;  // set-backs and heights (the defaults are rim_sim's)
 };
 
 class CityFrames {

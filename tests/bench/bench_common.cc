@@ -8,6 +8,8 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <mutex>
 
 #include "sim/city_frames.h"
 
@@ -30,12 +32,20 @@ void CheckOk(const absl::Status& status, const char* what) {
   std::abort();
 }
 
-const std::vector<PosedScan>& CitySequence() {
-  static const std::vector<PosedScan>* frames = [] {
+const char* CityKindName(CityKind kind) {
+  return kind == CityKind::kFarReturns ? "set-backs 4-10 m (far returns)" : "set-backs 0-3.5 m";
+}
+
+const std::vector<PosedScan>& CitySequence(CityKind kind) {
+  auto make = [](CityKind kind) {
     const auto start = std::chrono::steady_clock::now();
     sim::CityFrameOptions city;
     city.frames = Options().sequence_frames;
     city.seed = Options().seed;
+    if (kind == CityKind::kFarReturns) {
+      city.buildings.setback_min = 4.0;
+      city.buildings.setback_max = 10.0;
+    }
     const sim::CityFrames source(city);
     auto* out = new std::vector<PosedScan>();
     out->reserve(source.size());
@@ -46,11 +56,17 @@ const std::vector<PosedScan>& CitySequence() {
     }
     const double s =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::fprintf(stderr, "rim_bench: city sequence, seed %llu: %zu frames, %zu points, %.1f s\n",
-                 static_cast<unsigned long long>(city.seed), out->size(), points, s);
+    std::fprintf(
+        stderr, "rim_bench: city sequence, seed %llu, %s: %zu frames, %zu points, %.1f s\n",
+        static_cast<unsigned long long>(city.seed), CityKindName(kind), out->size(), points, s);
     return out;
-  }();
-  return *frames;
+  };
+  static std::mutex mu;
+  static std::map<CityKind, const std::vector<PosedScan>*> cities;
+  std::lock_guard<std::mutex> lock(mu);
+  auto it = cities.find(kind);
+  if (it == cities.end()) it = cities.emplace(kind, make(kind)).first;
+  return *it->second;
 }
 
 MapperConfig Preset(const std::string& name) {

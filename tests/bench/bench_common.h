@@ -28,8 +28,18 @@ struct BenchOptions {
 const BenchOptions& Options();
 void SetOptions(const BenchOptions& options);
 
-// The 64-beam city drive, `sequence_frames` frames 1 m apart, ray cast once and kept in memory.
-const std::vector<PosedScan>& CitySequence();
+// Which synthetic city a benchmark drives through.
+enum class CityKind {
+  kDefault,     // rim_sim's building set-backs (0-3.5 m): many facades inside the local box
+  kFarReturns,  // facades set back 4-10 m (13.5-19.5 m from the street centre line): beyond the
+                // default box, so most returns off buildings end outside it
+};
+// The building set-backs of a kind of city, "MIN-MAX m", for benchmark context lines.
+const char* CityKindName(CityKind kind);
+
+// The 64-beam city drive, `sequence_frames` frames 1 m apart, ray cast once (per kind, on first
+// use) and kept in memory.
+const std::vector<PosedScan>& CitySequence(CityKind kind = CityKind::kDefault);
 
 // A preset by name; aborts on an unknown name (benchmark set-up, not user input).
 MapperConfig Preset(const std::string& name);

@@ -65,20 +65,31 @@ Vec3f AwayFrom(const Surfel& s, const float* q, float r, float* d, float* sign,
   return Vec3f(s.n[0], s.n[1], s.n[2]);
 }
 
-// A nanoflann result set that keeps the nearest disk, and the disks within `blend` of the best
-// distance seen so far (for the gradient): a surfel farther than best + blend + r (centre to
-// query) can hold neither, which bounds the search.
+// How far beyond the nearest disk (at distance `best`) the disks that turn the gradient may lie
+// (see Query): none at the surface, kBlend at most, and far out no wider than reaches disks about
+// 2.5 radii to the side. best + BlendWidth(best) grows with best (where the last term decides, its
+// slope is 1 - 3 r^2 / best^2 > 0), so a search may drop every disk beyond the current best's
+// limit: the final best's limit is no larger.
+inline float BlendWidth(float best, float r) {
+  return std::max(0.f, std::min({kBlend, 0.1f * best, 3.f * r * r / best}));
+}
+
+// A nanoflann result set that keeps the nearest disk, and the disks within the blend width of the
+// best distance seen so far (for the gradient): a surfel whose centre lies farther than that limit
+// plus the disk radius can hold neither, which bounds the search.
 struct NearestDisk {
   static constexpr int kKeep = 16;
   const Surfel* surfels;
   const float* q;
-  float r, blend;
+  float r;
   float best;
   int64_t index = -1;
   int kept = 0;
-  std::array<std::pair<float, uint32_t>, kKeep> near;
+  std::array<std::pair<float, uint32_t>, kKeep> near{};
+  // Disks at or beyond this distance matter neither for the value nor for the gradient.
+  float Limit() const { return best + BlendWidth(best, r); }
   float worstDist() const {
-    const float w = best + blend + r;
+    const float w = Limit() + r;
     return w * w;
   }
   bool full() const { return true; }
@@ -88,11 +99,12 @@ struct NearestDisk {
       best = d;
       index = i;
     }
-    if (d < best + blend) {
+    const float limit = Limit();
+    if (d < limit) {
       if (kept == kKeep) {  // drop those the best has left behind, then the farthest
         int w = 0;
         for (int k = 0; k < kept; ++k)
-          if (near[k].first < best + blend) near[w++] = near[k];
+          if (near[k].first < limit) near[w++] = near[k];
         kept = w;
         if (kept == kKeep) {
           int far = 0;
@@ -303,10 +315,10 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     std::array<std::pair<float, const Surfel*>, 2 * NearestDisk::kKeep> near;
     int kept = 0;
     for (size_t k = 0; k < m; ++k) {
-      const float bound = best + kBlend + radius_;
+      const float bound = best + BlendWidth(best, radius_) + radius_;
       if (order[k].first >= bound * bound) break;
       const Part& part = *order[k].second;
-      NearestDisk search{part.surfels.data(), q, radius_, kBlend, best};
+      NearestDisk search{part.surfels.data(), q, radius_, best};
       part.tree.findNeighbors(search, q, nanoflann::SearchParams());
       if (search.index >= 0) {
         best = search.best;
@@ -341,7 +353,7 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     // plane and its direction would tilt the normal; and far out no wider than reaches disks
     // about 2.5 radii to the side (a width w at distance d reaches sqrt(2 d w)), which spans
     // the gaps between disks without a lopsided crowd of them.
-    const float blend = std::min({kBlend, 0.1f * best, 3.f * radius_ * radius_ / best});
+    const float blend = BlendWidth(best, radius_);
     Vec3f sum = Vec3f::Zero();
     bool covered = false;
     for (int j = 0; j < kept && !covered; ++j) {
