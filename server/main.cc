@@ -128,6 +128,7 @@ int Run(int argc, char** argv) {
   manager_options.host_memory_budget_bytes = config->host_memory_budget_bytes;
   manager_options.events = &metrics;
   manager_options.scheduler = &scheduler;
+  manager_options.background_nice = config->background_nice;
   manager_options.data_dir = config->data_dir;
   manager_options.default_preset = config->default_preset;
   manager_options.max_sessions = config->max_sessions;

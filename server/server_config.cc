@@ -53,6 +53,12 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 0, &c->warmup_frames);
   } else if (name == "train-slots") {
     return ParseInt(name, value, 0, &c->train_slots);
+  } else if (name == "background-nice") {
+    if (absl::Status s = ParseInt(name, value, 0, &c->background_nice); !s.ok()) return s;
+    if (c->background_nice > 19)
+      return absl::InvalidArgumentError(
+          absl::StrCat("--background-nice: expected an integer in [0, 19], got '", value, "'"));
+    return absl::OkStatus();
   } else if (name == "shutdown-deadline") {
     return ParseInt(name, value, 0, &c->shutdown_deadline_s);
   } else if (name == "tokens") {
@@ -130,6 +136,8 @@ std::string ServerUsage() {
          "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
          "                  [--shutdown-deadline SECONDS (default 10)]\n"
          "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n"
+         "                  [--background-nice N (0-19, default 5: training and meshing yield\n"
+         "                   the cores to queries)]\n"
          "                  [--tokens FILE] [--tls-cert FILE --tls-key FILE [--tls-client-ca "
          "FILE]]\n"
          "                  [--insecure (serve a non-loopback --listen without --tokens)]\n"
@@ -157,6 +165,7 @@ std::string ServerConfig::ToString() const {
     << "warmup_frames = " << warmup_frames << "\n"
     << "shutdown_deadline = " << shutdown_deadline_s << "\n"
     << "train_slots = " << train_slots << "\n"
+    << "background_nice = " << background_nice << "\n"
     << "tokens = " << tokens_file << "\n"
     << "tls_cert = " << tls_cert << "\n"
     << "tls_key = " << tls_key << "\n"

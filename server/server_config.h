@@ -45,6 +45,10 @@ struct ServerConfig {
   bool shared_sessions = false;
   // Frames that may train at once across all sessions (ComputeScheduler); 0: one per two cores.
   int train_slots = 0;
+  // Nice value (0-19) of the background threads: training, distance-field refreshes and meshing
+  // for watchers. Queries and ingest stay at the process's own priority (docs/service.md,
+  // "Sharing the cores"). 0: all equal.
+  int background_nice = 5;
 
   // Every field as `key = value` lines.
   std::string ToString() const;

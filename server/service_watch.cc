@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "absl/container/flat_hash_map.h"
+#include "rim/base/thread_priority.h"
 #include "server/latest_queue.h"
 #include "server/service.h"
 #include "server/status_mapping.h"
@@ -95,6 +96,8 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   }
 
   void Watch() {
+    NameThisThread("rim-watch");
+    LowerThisThreadPriority(session_->background_nice());
     const auto interval = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
         std::chrono::duration<double>(session_->mapper().config().watch.min_interval_s));
     uint64_t listed_version = since_version_;

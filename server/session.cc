@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/binary_io.h"
+#include "rim/base/thread_priority.h"
 
 namespace rim::server {
 namespace {
@@ -242,6 +243,8 @@ bool Session::LatestPose(TrajectoryPoint* pose) const {
 }
 
 void Session::Run() {
+  NameThisThread("rim-train");
+  LowerThisThreadPriority(options_.background_nice);
   std::unique_lock<std::mutex> lock(mu_);
   while (true) {
     // Drain everything accepted before stopping: an accepted scan is never dropped.

@@ -44,6 +44,10 @@ struct SessionOptions {
   // Shares the compute with other sessions: a slot is held while a frame trains. Not owned,
   // outlives the session; null: train whenever a scan is queued.
   ComputeScheduler* scheduler = nullptr;
+  // The nice value of the session's background threads (training with its refreshes, and the
+  // meshing of its watchers): above 0, queries and ingest on the normal-priority RPC threads
+  // take the cores first (docs/service.md, "Sharing the cores").
+  int background_nice = 0;
 };
 
 struct IntegratedAck {
@@ -110,6 +114,7 @@ class Session {
   int AdaptiveIterations(size_t queue_depth) const;
 
   const std::string& robot_id() const { return robot_id_; }
+  int background_nice() const { return options_.background_nice; }
   TileCache& tiles() { return tiles_; }
   Mapper& mapper() { return *mapper_; }
   const Mapper& mapper() const { return *mapper_; }

@@ -90,6 +90,7 @@ SessionOptions SessionManager::MakeSessionOptions(const std::string& robot_id) c
   o.checkpoint_dir = AbsoluteDir(robot_id);
   o.events = options_.events;
   o.scheduler = options_.scheduler;
+  o.background_nice = options_.background_nice;
   return o;
 }
 

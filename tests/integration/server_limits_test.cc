@@ -11,7 +11,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <limits>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -302,6 +305,83 @@ TEST(ServerMemoryBudgetTest, SessionsAndScansOverTheBudgetAreRefused) {
   EXPECT_EQ((*grow)->Stop().value_or(-1), 0);
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }
+
+#if defined(__linux__)
+// Nice values of the server's threads by name, read from /proc (field 19 of a task's stat).
+std::vector<std::pair<std::string, int>> ThreadNices(pid_t pid) {
+  std::vector<std::pair<std::string, int>> out;
+  const std::string dir = "/proc/" + std::to_string(pid) + "/task";
+  for (const auto& task : std::filesystem::directory_iterator(dir)) {
+    std::ifstream comm(task.path() / "comm"), stat(task.path() / "stat");
+    std::string name, line;
+    std::getline(comm, name);
+    std::getline(stat, line);
+    // The name in stat is in parentheses and may hold spaces: count fields after the last ')'.
+    std::istringstream rest(line.substr(line.rfind(')') + 2));
+    std::string field;
+    int nice = 0;
+    for (int k = 3; k <= 19 && rest >> field; ++k)
+      if (k == 19) nice = std::stoi(field);
+    out.emplace_back(name, nice);
+  }
+  return out;
+}
+
+// docs/service.md, "Sharing the cores": training and the meshing for watchers run at
+// --background-nice, the RPC threads that answer queries at the process's own priority.
+TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot) {
+  ServerProcessOptions options;
+  options.args = {"--background-nice", "7"};
+  auto server = ServerProcess::Start(options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  ASSERT_TRUE(client->CreateSession("nice", "maicity", kSmallMap).ok());
+  auto streamed = client->Session("nice").Stream({GroundScan(0)});
+  ASSERT_TRUE(streamed.ok()) << streamed.status();
+  // A watcher meshes on its own thread; keep one open while the threads are read.
+  grpc::ClientContext watch_context;
+  rim::v1::WatchMeshTilesRequest watch_request;
+  watch_request.set_robot_id("nice");
+  auto channel = grpc::CreateChannel((*server)->address(), grpc::InsecureChannelCredentials());
+  auto stub = rim::v1::Rim::NewStub(channel);
+  auto watch = stub->WatchMeshTiles(&watch_context, watch_request);
+  rim::v1::MeshTile first_tile;
+  ASSERT_TRUE(watch->Read(&first_tile));  // the watcher thread is running
+  ASSERT_TRUE(client->Session("nice").Query({Vec3f(0.f, 0.f, 0.5f)}).ok());
+  int trainers = 0, watchers = 0, pools = 0, others_lowered = 0;
+  for (const auto& [name, nice] : ThreadNices((*server)->pid())) {
+    if (name == "rim-train") {
+      ++trainers;
+      EXPECT_EQ(nice, 7) << name;
+    }
+    if (name == "rim-watch") {
+      ++watchers;
+      EXPECT_EQ(nice, 7) << name;
+    }
+    // Pool workers follow the trainer down when it first hands them work.
+    if (name == "rim-pool" && nice == 7) ++pools;
+    if (name.rfind("rim-", 0) != 0 && nice != 0) ++others_lowered;
+  }
+  EXPECT_EQ(trainers, 1);
+  EXPECT_EQ(watchers, 1);
+  EXPECT_GE(pools, 1);
+  EXPECT_EQ(others_lowered, 0) << "the RPC threads answer queries at the normal priority";
+  watch_context.TryCancel();
+  rim::v1::MeshTile ignored;
+  while (watch->Read(&ignored)) {
+  }
+  watch->Finish();
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+
+  // A value out of range is refused at start, by name.
+  ServerProcessOptions bad;
+  bad.args = {"--background-nice", "20"};
+  auto refused = ServerProcess::Start(bad);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_THAT(std::string(refused.status().message()), HasSubstr("--background-nice"));
+}
+#endif
 
 TEST(ServerWarmupTest, HealthIsNotServingUntilWarmedUp) {
   ServerProcessOptions options;

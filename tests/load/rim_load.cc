@@ -22,7 +22,12 @@
 // failed, or a session's integrated count differs from its accepted count.
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
-//                 [--rate 10] [--duration 60] [--batch 10000] [--frames 40] [--query-rate 0]
+//                 [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]
+//
+// The robots drive the city's loop road, 1 m per frame. --frames F city frames are cast before
+// the run (default: enough for the whole run at --rate, at most 600); a robot that reaches the
+// last one drives back along the same road, so the sensor never jumps (a jump would slide the
+// whole local box at once, which no robot does between two frames).
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -44,7 +49,8 @@ namespace {
 
 struct Options {
   std::string server;
-  int robots = 2, planners = 2, dashboards = 1, batch = 10000, frames = 40;
+  int robots = 2, planners = 2, dashboards = 1, batch = 10000;
+  int frames = 0;  // 0: rate x duration, at most 600
   double rate_hz = 10, duration_s = 60;
   double query_rate_hz = 0;  // batches per second per planner; 0: back to back
 };
@@ -81,7 +87,7 @@ bool Parse(int argc, char** argv, Options* o) {
   return (argc % 2) == 1 && !o->server.empty() && o->robots >= 0 && o->robots <= 16 &&
          o->planners >= 0 && o->planners <= 16 && o->dashboards >= 0 && o->dashboards <= 16 &&
          o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
-         o->batch <= 1000000 && o->frames > 0 && o->frames <= 1000 &&
+         o->batch <= 1000000 && o->frames >= 0 && o->frames <= 1000 &&
          std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000;
 }
 
@@ -112,7 +118,9 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "rim_load: %s\n", std::string(client.status().message()).c_str());
     return 3;
   }
-  // The scans: cast once, replayed in a loop by every robot (robot r starts at a different frame).
+  // The scans: cast once, driven forward and back by every robot (robot r starts at a different
+  // frame).
+  if (o.frames == 0) o.frames = int(std::clamp(std::ceil(o.rate_hz * o.duration_s), 2.0, 600.0));
   std::fprintf(stderr, "rim_load: casting %d city frames...\n", o.frames);
   rim::sim::CityFrameOptions city;
   city.frames = o.frames;
@@ -146,6 +154,8 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
+  // The frame each robot sent last: planners ask around it, as a planner plans around its robot.
+  std::vector<std::atomic<size_t>> latest(size_t(std::max(o.robots, 1)));
   std::vector<std::thread> threads;
   for (int r = 0; r < o.robots; ++r) {
     threads.emplace_back([&, r] {
@@ -164,7 +174,12 @@ int main(int argc, char** argv) {
       auto summary = client->Session(robots[r]).Stream(
           [&](rim::v1::Scan* scan) -> absl::StatusOr<bool> {
             if (std::chrono::steady_clock::now() >= deadline) return false;
-            *scan = rim::ScanToProto(frames[k++ % frames.size()], robots[r], 0);
+            // Forward through the frames, then back: 0, 1, ..., n-1, n-2, ..., 1, 0, 1, ...
+            const size_t n = frames.size(), period = n > 1 ? 2 * (n - 1) : 1;
+            const size_t phase = k++ % period;
+            const size_t index = phase < n ? phase : period - phase;
+            latest[r] = index;
+            *scan = rim::ScanToProto(frames[index], robots[r], 0);
             return true;
           },
           options);
@@ -185,7 +200,7 @@ int main(int argc, char** argv) {
               std::chrono::duration<double>(1.0 / o.query_rate_hz));
           if (Clock::now() >= deadline) break;
         }
-        const rim::PosedScan& near = frames[rng() % frames.size()];
+        const rim::PosedScan& near = frames[latest[p % robots.size()].load()];
         const rim::Vec3d c = near.T_world_sensor.translation();
         std::vector<rim::Vec3f> points(o.batch);
         for (auto& q : points) q = rim::Vec3f(c.x() + u(rng), c.y() + u(rng), u(rng) * 0.2f);

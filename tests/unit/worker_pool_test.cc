@@ -3,12 +3,14 @@
 #include "rim/base/worker_pool.h"
 
 #include <atomic>
+#include <chrono>
 #include <mutex>
 #include <set>
 #include <thread>
 #include <vector>
 
 #include "gtest/gtest.h"
+#include "rim/base/thread_priority.h"
 
 namespace rim {
 namespace {
@@ -50,4 +52,38 @@ TEST(WorkerPoolTest, OneThreadRunsInline) {
 }
 
 }  // namespace
+#if defined(__linux__)
+// The server lowers its trainer thread's priority (--background-nice); the pool that thread drives
+// was made elsewhere, at the normal priority, and must follow it down, or training would keep
+// half its work at the priority that queries are meant to have to themselves.
+TEST(WorkerPoolTest, WorkersFollowTheCallersPriorityDown) {
+  WorkerPool pool(3);  // made here, at this thread's priority
+  const int base = ThisThreadNice();
+  if (base > 12) GTEST_SKIP() << "the test process already runs at nice " << base;
+  std::thread lowered([&] {
+    NameThisThread("rim-test-low");
+    ASSERT_TRUE(LowerThisThreadPriority(base + 6));
+    EXPECT_EQ(ThisThreadNice(), base + 6);
+    // Never raised again: that would need privileges, and the call says the thread stays put.
+    LowerThisThreadPriority(base);
+    EXPECT_EQ(ThisThreadNice(), base + 6);
+    std::mutex mu;
+    std::set<int> nices;
+    std::set<std::thread::id> ids;
+    for (int round = 0; round < 200 && ids.size() < 3; ++round) {
+      pool.Run(12, [&](int) {
+        std::lock_guard<std::mutex> lock(mu);
+        nices.insert(ThisThreadNice());
+        ids.insert(std::this_thread::get_id());
+        std::this_thread::sleep_for(std::chrono::microseconds(200));
+      });
+    }
+    EXPECT_EQ(ids.size(), 3u) << "every pool thread should have taken a task";
+    EXPECT_EQ(nices, std::set<int>{base + 6});
+  });
+  lowered.join();
+  EXPECT_EQ(ThisThreadNice(), base);  // one thread's priority, not the process's
+}
+#endif
+
 }  // namespace rim

@@ -2,10 +2,16 @@
 
 #include <algorithm>
 
+#include "rim/base/thread_priority.h"
+
 namespace rim {
 
 WorkerPool::WorkerPool(int threads) {
-  for (int i = 1; i < std::max(threads, 1); ++i) workers_.emplace_back([this] { Work(); });
+  for (int i = 1; i < std::max(threads, 1); ++i)
+    workers_.emplace_back([this] {
+      NameThisThread("rim-pool");
+      Work();
+    });
 }
 
 WorkerPool::~WorkerPool() {
@@ -26,8 +32,10 @@ void WorkerPool::Run(int tasks, const std::function<void(int)>& fn) {
     for (int i = 0; i < tasks; ++i) fn(i);
     return;
   }
+  const int nice = ThisThreadNice();
   {
     std::lock_guard<std::mutex> lock(mu_);
+    caller_nice_ = nice;
     fn_ = &fn;
     tasks_ = tasks;
     next_.store(0);
@@ -44,13 +52,17 @@ void WorkerPool::Run(int tasks, const std::function<void(int)>& fn) {
 
 void WorkerPool::Work() {
   uint64_t seen = 0;
+  int my_nice = ThisThreadNice();
   for (;;) {
+    int nice;
     {
       std::unique_lock<std::mutex> lock(mu_);
       start_cv_.wait(lock, [&] { return stop_ || generation_ != seen; });
       if (stop_) return;
       seen = generation_;
+      nice = caller_nice_;
     }
+    if (nice > my_nice && LowerThisThreadPriority(nice)) my_nice = nice;
     Drain();
     std::lock_guard<std::mutex> lock(mu_);
     if (--busy_ == 0) done_cv_.notify_one();

@@ -2,7 +2,9 @@
 // scatter, Adam) on the cores a session is given (train.threads). The caller's thread works too,
 // so a pool of n threads starts n − 1. Regions are a few milliseconds long and come ~100 times a
 // second, so the workers stay alive and wait on a condition variable instead of being started
-// per region.
+// per region. The workers run at the priority of the thread that calls Run (a pool made on one
+// thread and used from a lower-priority trainer thread follows it down;
+// rim/base/thread_priority.h).
 #pragma once
 
 #include <atomic>
@@ -42,6 +44,7 @@ class WorkerPool {
   std::atomic<int> next_{0};
   int busy_ = 0;
   uint64_t generation_ = 0;
+  int caller_nice_ = 0;  // the nice value of the thread in Run
   bool stop_ = false;
   std::vector<std::thread> workers_;
 };
