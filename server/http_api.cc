@@ -16,6 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "nlohmann/json.hpp"
+#include "rim/base/thread_priority.h"
 #include "rim/base/version.h"
 
 namespace rim::server {
@@ -349,7 +350,7 @@ namespace {
 // civetweb's begin_request callback: every request is answered here (no document_root is set, so
 // civetweb itself serves nothing).
 int OnRequest(mg_connection* conn) {
-  const auto* api = static_cast<const HttpApi*>(mg_get_user_data(mg_get_context(conn)));
+  const auto* api = static_cast<const HttpServer*>(mg_get_user_data(mg_get_context(conn)))->api();
   const mg_request_info* info = mg_get_request_info(conn);
   HttpRequest request;
   request.method = info->request_method ? info->request_method : "";
@@ -373,13 +374,24 @@ int OnRequest(mg_connection* conn) {
   return r.status;
 }
 
+// civetweb's init_thread callback: names its request workers and moves them to the background.
+void* OnThreadStart(const mg_context* ctx, int thread_type) {
+  if (thread_type == 1) {  // a request worker
+    NameThisThread("rim-http");
+    LowerThisThreadPriority(static_cast<const HttpServer*>(mg_get_user_data(ctx))->worker_nice());
+  }
+  return nullptr;
+}
+
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& address,
-                                                              std::unique_ptr<HttpApi> api) {
+                                                              std::unique_ptr<HttpApi> api,
+                                                              int worker_nice) {
   mg_init_library(0);
   std::unique_ptr<HttpServer> server(new HttpServer());
   server->api_ = std::move(api);
+  server->worker_nice_ = worker_nice;
   // Own worker threads (a slow client holds one for at most request_timeout_ms); one request per
   // connection, so an idle browser connection never keeps a worker.
   const char* options[] = {"listening_ports",
@@ -395,7 +407,8 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
                            nullptr};
   mg_callbacks callbacks = {};
   callbacks.begin_request = OnRequest;
-  server->ctx_ = mg_start(&callbacks, server->api_.get(), options);
+  callbacks.init_thread = OnThreadStart;
+  server->ctx_ = mg_start(&callbacks, server.get(), options);
   if (server->ctx_ == nullptr) {
     mg_exit_library();
     return absl::UnavailableError(

@@ -76,15 +76,22 @@ class HttpApi {
 
 class HttpServer {
  public:
-  // Listens on `address` (host:port with a numeric host; port 0 picks a free one).
+  // Listens on `address` (host:port with a numeric host; port 0 picks a free one). The worker
+  // threads (named rim-http) run at nice `worker_nice`: everything they do (tile listings that
+  // mesh, tile bytes, session summaries) is dashboard work, background to queries
+  // (docs/service.md, "Sharing the cores").
   static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const std::string& address,
-                                                           std::unique_ptr<HttpApi> api);
+                                                           std::unique_ptr<HttpApi> api,
+                                                           int worker_nice = 0);
   ~HttpServer();  // stops: waits for requests in progress
   int port() const { return port_; }
+  const HttpApi* api() const { return api_.get(); }
+  int worker_nice() const { return worker_nice_; }
 
  private:
   HttpServer() = default;
   std::unique_ptr<HttpApi> api_;
+  int worker_nice_ = 0;
   mg_context* ctx_ = nullptr;
   int port_ = 0;
 };

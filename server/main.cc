@@ -180,8 +180,9 @@ int Run(int argc, char** argv) {
       return 2;
     }
     auto started = rim::server::HttpServer::Start(
-        config->http, std::make_unique<rim::server::HttpApi>(&sessions, &security->authorizer,
-                                                             std::move(*files)));
+        config->http,
+        std::make_unique<rim::server::HttpApi>(&sessions, &security->authorizer, std::move(*files)),
+        config->background_nice);
     if (!started.ok()) {
       std::cerr << "rim_server: " << started.status().message() << "\n";
       return 1;

@@ -328,10 +328,11 @@ std::vector<std::pair<std::string, int>> ThreadNices(pid_t pid) {
 }
 
 // docs/service.md, "Sharing the cores": training and the meshing for watchers run at
-// --background-nice, the RPC threads that answer queries at the process's own priority.
+// --background-nice, and so do the dashboard's HTTP workers; the RPC threads that answer queries
+// run at the process's own priority.
 TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot) {
   ServerProcessOptions options;
-  options.args = {"--background-nice", "7"};
+  options.args = {"--background-nice", "7", "--http", "127.0.0.1:0"};
   auto server = ServerProcess::Start(options);
   ASSERT_TRUE(server.ok()) << server.status();
   auto client = Client::Connect((*server)->address());
@@ -349,7 +350,7 @@ TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot
   rim::v1::MeshTile first_tile;
   ASSERT_TRUE(watch->Read(&first_tile));  // the watcher thread is running
   ASSERT_TRUE(client->Session("nice").Query({Vec3f(0.f, 0.f, 0.5f)}).ok());
-  int trainers = 0, watchers = 0, pools = 0, others_lowered = 0;
+  int trainers = 0, watchers = 0, pools = 0, http_workers = 0, others_lowered = 0;
   for (const auto& [name, nice] : ThreadNices((*server)->pid())) {
     if (name == "rim-train") {
       ++trainers;
@@ -359,6 +360,10 @@ TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot
       ++watchers;
       EXPECT_EQ(nice, 7) << name;
     }
+    if (name == "rim-http") {  // the dashboard's request workers
+      ++http_workers;
+      EXPECT_EQ(nice, 7) << name;
+    }
     // Pool workers follow the trainer down when it first hands them work.
     if (name == "rim-pool" && nice == 7) ++pools;
     if (name.rfind("rim-", 0) != 0 && nice != 0) ++others_lowered;
@@ -366,6 +371,7 @@ TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot
   EXPECT_EQ(trainers, 1);
   EXPECT_EQ(watchers, 1);
   EXPECT_GE(pools, 1);
+  EXPECT_GE(http_workers, 1);
   EXPECT_EQ(others_lowered, 0) << "the RPC threads answer queries at the normal priority";
   watch_context.TryCancel();
   rim::v1::MeshTile ignored;
