@@ -1,9 +1,15 @@
 #include "rim/map/slab_saver.h"
 
+#include "rim/base/thread_priority.h"
+
 namespace rim {
 
 SlabSaver::SlabSaver(SubmapStore* store, bool background) : store_(store), background_(background) {
-  if (background_) worker_ = std::thread([this] { Run(); });
+  if (background_)
+    worker_ = std::thread([this] {
+      NameThisThread("rim-saver");
+      Run();
+    });
 }
 
 SlabSaver::~SlabSaver() {
