@@ -163,6 +163,7 @@ int Run(int argc, char** argv) {
   rim::server::ServiceLimits limits;
   limits.max_points_per_scan = config->max_points_per_scan;
   limits.max_query_points = config->max_query_points;
+  limits.max_streams = config->max_streams;
   limits.queue_length = config->queue_length;
   limits.max_sessions = config->max_sessions;
   limits.host_memory_budget_bytes = config->host_memory_budget_bytes;

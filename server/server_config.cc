@@ -47,6 +47,8 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     return ParseInt(name, value, 0, &c->checkpoint_every_frames);
   } else if (name == "max-query-points") {
     return ParseInt(name, value, 1, &c->max_query_points);
+  } else if (name == "max-streams") {
+    return ParseInt(name, value, 1, &c->max_streams);
   } else if (name == "max-points-per-scan") {
     return ParseInt(name, value, 1, &c->max_points_per_scan);
   } else if (name == "warmup-frames") {
@@ -131,6 +133,7 @@ std::string ServerUsage() {
          "                  [--http ADDR (browser dashboard and JSON API) [--web-root DIR]]\n"
          "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
          "                  [--max-query-points N] [--max-points-per-scan N]\n"
+         "                  [--max-streams N (open scan, query and watch streams; default 128)]\n"
          "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n"
          "                  [--host-memory-budget-bytes N (default 0 = none)]\n"
          "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
@@ -166,6 +169,7 @@ std::string ServerConfig::ToString() const {
     << "shutdown_deadline = " << shutdown_deadline_s << "\n"
     << "train_slots = " << train_slots << "\n"
     << "background_nice = " << background_nice << "\n"
+    << "max_streams = " << max_streams << "\n"
     << "tokens = " << tokens_file << "\n"
     << "tls_cert = " << tls_cert << "\n"
     << "tls_key = " << tls_key << "\n"

@@ -25,6 +25,7 @@ struct ServerConfig {
   int queue_length = 8;
   int checkpoint_every_frames = 100;  // 0: only on SaveSession, close and shutdown
   int max_query_points = 1 << 20;
+  int max_streams = 128;  // long-lived streams open at once (ServiceLimits::max_streams)
   int max_points_per_scan = 1 << 21;
   uint64_t host_memory_budget_bytes = 0;  // 0: no budget enforced
   // Frames of a built-in scene trained at start, before health reports SERVING, so that the first

@@ -43,7 +43,25 @@ const Authorizer& OpenAuthorizer() {
 
 RimService::RimService(SessionManager* sessions, const ServiceLimits& limits,
                        const Authorizer* auth)
-    : sessions_(sessions), limits_(limits), auth_(auth != nullptr ? auth : &OpenAuthorizer()) {}
+    : sessions_(sessions),
+      limits_(limits),
+      auth_(auth != nullptr ? auth : &OpenAuthorizer()),
+      streams_(limits.max_streams) {}
+
+StreamLimiter::StreamLimiter(int max_streams)
+    : max_(max_streams), open_(std::make_shared<std::atomic<int>>(0)) {}
+
+absl::StatusOr<StreamLimiter::Slot> StreamLimiter::Acquire(const char* rpc) {
+  if (open_->fetch_add(1) >= max_) {
+    open_->fetch_sub(1);
+    return absl::ResourceExhaustedError(
+        absl::StrCat(rpc, ": ", max_, " streams are open on this server, its limit (--max-streams ",
+                     max_, "); close one first"));
+  }
+  // The counter outlives the limiter if a stream does: the slot keeps it.
+  std::shared_ptr<std::atomic<int>> open = open_;
+  return Slot(open.get(), [open](void*) { open->fetch_sub(1); });
+}
 
 void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
   const SessionStats stats = session.Stats();
@@ -139,7 +157,9 @@ grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScan
     grpc::CallbackServerContext* ctx) {
   auto principal = auth_->Authorize(*ctx, Rpc::kStreamScans);
   if (!principal.ok()) return new RefusedBidi<rim::v1::Scan, rim::v1::ScanAck>(principal.status());
-  return NewScanStreamReactor(sessions_, limits_, *principal);
+  auto slot = streams_.Acquire("StreamScans");
+  if (!slot.ok()) return new RefusedBidi<rim::v1::Scan, rim::v1::ScanAck>(slot.status());
+  return NewScanStreamReactor(sessions_, limits_, *principal, *std::move(slot));
 }
 
 absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,
@@ -188,7 +208,10 @@ RimService::StreamQuerySdf(grpc::CallbackServerContext* ctx) {
   auto principal = auth_->Authorize(*ctx, Rpc::kStreamQuerySdf);
   if (!principal.ok())
     return new RefusedBidi<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>(principal.status());
-  return NewQueryStreamReactor(sessions_, limits_, *principal);
+  auto slot = streams_.Acquire("StreamQuerySdf");
+  if (!slot.ok())
+    return new RefusedBidi<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>(slot.status());
+  return NewQueryStreamReactor(sessions_, limits_, *principal, *std::move(slot));
 }
 
 grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::GetMeshTiles(
@@ -202,7 +225,9 @@ grpc::ServerWriteReactor<rim::v1::MeshTile>* RimService::WatchMeshTiles(
     grpc::CallbackServerContext* ctx, const rim::v1::WatchMeshTilesRequest* request) {
   if (absl::Status s = auth_->Authorize(*ctx, Rpc::kWatchMeshTiles, request->robot_id()); !s.ok())
     return new RefusedTiles(s);
-  return NewWatchReactor(sessions_, *request);
+  auto slot = streams_.Acquire("WatchMeshTiles");
+  if (!slot.ok()) return new RefusedTiles(slot.status());
+  return NewWatchReactor(sessions_, *request, *std::move(slot));
 }
 
 grpc::ServerUnaryReactor* RimService::GetServerInfo(grpc::CallbackServerContext* ctx,

@@ -3,9 +3,12 @@
 // absl::Status, converted once at the edge by ToGrpcStatus.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
+#include <memory>
 #include <string>
 
+#include "absl/status/statusor.h"
 #include "rim/v1/rim.grpc.pb.h"
 #include "server/auth.h"
 #include "server/session_manager.h"
@@ -18,6 +21,24 @@ struct ServiceLimits {
   int queue_length = 8;
   int max_sessions = 16;
   uint64_t host_memory_budget_bytes = 0;
+  // Long-lived streams open at once, all clients together (StreamScans, StreamQuerySdf,
+  // WatchMeshTiles): each holds reactor state and a watch a thread of its own.
+  int max_streams = 128;
+};
+
+// Counts the open long-lived streams against ServiceLimits::max_streams. A stream holds its slot
+// for its whole life (the reactor owns it); past the limit a new stream ends at once with
+// RESOURCE_EXHAUSTED naming --max-streams, and the open ones are untouched.
+class StreamLimiter {
+ public:
+  using Slot = std::shared_ptr<void>;
+  explicit StreamLimiter(int max_streams);
+  absl::StatusOr<Slot> Acquire(const char* rpc);
+  int open() const { return open_->load(); }
+
+ private:
+  const int max_;
+  std::shared_ptr<std::atomic<int>> open_;
 };
 
 class RimService final : public rim::v1::Rim::CallbackService {
@@ -63,6 +84,7 @@ class RimService final : public rim::v1::Rim::CallbackService {
   SessionManager* sessions_;
   const ServiceLimits limits_;
   const Authorizer* auth_;
+  StreamLimiter streams_;
 };
 
 // Fills `info` from the session's counters and its mapper's statistics.
@@ -73,15 +95,18 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
 // another robot is REJECTED with PERMISSION_DENIED and the stream goes on; a query for another
 // robot ends the query stream with PERMISSION_DENIED.
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
+    StreamLimiter::Slot slot);
 // One query (unary, or one message of a query stream): points limited to max_query_points.
 absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,
                          const rim::v1::QuerySdfRequest& request,
                          rim::v1::QuerySdfResponse* response);
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
+    StreamLimiter::Slot slot);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewWatchReactor(
-    SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request);
+    SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request,
+    StreamLimiter::Slot slot);
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewMeshTilesReactor(
     SessionManager* sessions, const rim::v1::GetMeshTilesRequest& request);
 

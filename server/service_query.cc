@@ -12,8 +12,8 @@ class QueryStreamReactor
     : public grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse> {
  public:
   QueryStreamReactor(SessionManager* sessions, const ServiceLimits& limits,
-                     const Principal& principal)
-      : sessions_(sessions), limits_(limits), principal_(principal) {
+                     const Principal& principal, StreamLimiter::Slot slot)
+      : sessions_(sessions), limits_(limits), principal_(principal), slot_(std::move(slot)) {
     StartRead(&request_);
   }
 
@@ -48,13 +48,15 @@ class QueryStreamReactor
   const Principal principal_;
   rim::v1::QuerySdfRequest request_;
   rim::v1::QuerySdfResponse response_;
+  const StreamLimiter::Slot slot_;  // released when the stream is done
 };
 
 }  // namespace
 
 grpc::ServerBidiReactor<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>* NewQueryStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal) {
-  return new QueryStreamReactor(sessions, limits, principal);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
+    StreamLimiter::Slot slot) {
+  return new QueryStreamReactor(sessions, limits, principal, std::move(slot));
 }
 
 }  // namespace rim::server

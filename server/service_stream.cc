@@ -31,10 +31,11 @@ struct Shared {
 class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck> {
  public:
   ScanStreamReactor(SessionManager* sessions, const ServiceLimits& limits,
-                    const Principal& principal)
+                    const Principal& principal, StreamLimiter::Slot slot)
       : sessions_(sessions),
         limits_(limits),
         principal_(principal),
+        slot_(std::move(slot)),
         shared_(std::make_shared<Shared>()) {
     shared_->reactor = this;
     std::lock_guard<std::mutex> lock(shared_->mu);
@@ -268,6 +269,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
   SessionManager* const sessions_;
   const ServiceLimits limits_;
   const Principal principal_;
+  const StreamLimiter::Slot slot_;  // released when the stream is done
   const std::shared_ptr<Shared> shared_;
 
   rim::v1::Scan in_;  // the read buffer; only the reading side touches it
@@ -286,8 +288,9 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
 }  // namespace
 
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
-    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal) {
-  return new ScanStreamReactor(sessions, limits, principal);
+    SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
+    StreamLimiter::Slot slot) {
+  return new ScanStreamReactor(sessions, limits, principal, std::move(slot));
 }
 
 }  // namespace rim::server

@@ -25,8 +25,8 @@ constexpr auto kPollInterval = std::chrono::milliseconds(500);
 
 class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
  public:
-  WatchReactor(std::shared_ptr<Session> session, uint64_t since_version)
-      : session_(std::move(session)), since_version_(since_version) {
+  WatchReactor(std::shared_ptr<Session> session, uint64_t since_version, StreamLimiter::Slot slot)
+      : session_(std::move(session)), since_version_(since_version), slot_(std::move(slot)) {
     watcher_ = std::thread([this] { Watch(); });
   }
 
@@ -169,6 +169,7 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
 
   std::shared_ptr<Session> session_;
   const uint64_t since_version_;
+  const StreamLimiter::Slot slot_;  // released when the watch is done
   std::mutex mu_;
   std::condition_variable cv_;
   // At most one message per tile: a newer version replaces a queued older one.
@@ -189,10 +190,11 @@ class FailedWatch : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
 }  // namespace
 
 grpc::ServerWriteReactor<rim::v1::MeshTile>* NewWatchReactor(
-    SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request) {
+    SessionManager* sessions, const rim::v1::WatchMeshTilesRequest& request,
+    StreamLimiter::Slot slot) {
   auto session = sessions->Get(request.robot_id());
   if (!session.ok()) return new FailedWatch(ToGrpcStatus(session.status()));
-  return new WatchReactor(*session, request.since_version());
+  return new WatchReactor(*session, request.since_version(), std::move(slot));
 }
 
 }  // namespace rim::server

@@ -239,6 +239,79 @@ TEST_F(ServerLimitsTest, QueriesAndSessionsHaveTheirLimits) {
   }
 }
 
+// A planner that opens stream after stream meets --max-streams: RESOURCE_EXHAUSTED naming it, the
+// open streams keep working, and a slot freed by a closed stream can be taken again.
+TEST(ServerStreamLimitTest, StreamsPastTheLimitAreRefusedByNameAndTheOpenOnesGoOn) {
+  ServerProcessOptions options;
+  options.args = {"--max-streams", "2"};
+  auto server = ServerProcess::Start(options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  ASSERT_TRUE(client->CreateSession("planned", "maicity", kSmallMap).ok());
+  auto stub = rim::v1::Rim::NewStub(
+      grpc::CreateChannel((*server)->address(), grpc::InsecureChannelCredentials()));
+  rim::v1::QuerySdfRequest request;
+  request.set_robot_id("planned");
+  request.set_points_xyz(std::string(24, '\0'));  // two points at the origin
+  struct Open {
+    grpc::ClientContext ctx;
+    std::unique_ptr<grpc::ClientReaderWriter<rim::v1::QuerySdfRequest, rim::v1::QuerySdfResponse>>
+        stream;
+  };
+  // Opens a query stream and asks once; false when the server refused it (status in *refused).
+  auto open = [&](Open* o, grpc::Status* refused) {
+    o->stream = stub->StreamQuerySdf(&o->ctx);
+    rim::v1::QuerySdfResponse response;
+    if (o->stream->Write(request) && o->stream->Read(&response)) return true;
+    o->stream->WritesDone();
+    *refused = o->stream->Finish();
+    return false;
+  };
+  grpc::Status refused;
+  Open a, b, c;
+  ASSERT_TRUE(open(&a, &refused)) << refused.error_message();
+  ASSERT_TRUE(open(&b, &refused)) << refused.error_message();
+  ASSERT_FALSE(open(&c, &refused));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(refused.error_message(), HasSubstr("--max-streams 2"));
+  // A watch counts too.
+  {
+    grpc::ClientContext ctx;
+    rim::v1::WatchMeshTilesRequest watch;
+    watch.set_robot_id("planned");
+    auto reader = stub->WatchMeshTiles(&ctx, watch);
+    rim::v1::MeshTile tile;
+    while (reader->Read(&tile)) {
+    }
+    const grpc::Status s = reader->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    EXPECT_THAT(s.error_message(), HasSubstr("WatchMeshTiles"));
+  }
+  // The open streams still answer, and unary queries are not streams.
+  rim::v1::QuerySdfResponse response;
+  ASSERT_TRUE(a.stream->Write(request) && a.stream->Read(&response));
+  EXPECT_EQ(response.sdf().size(), 8u);
+  EXPECT_TRUE(client->Session("planned").Query({Vec3f(0.f, 0.f, 0.f)}).ok());
+  // Closing one frees its slot.
+  a.stream->WritesDone();
+  EXPECT_TRUE(a.stream->Finish().ok());
+  std::unique_ptr<Open> d;
+  for (int attempt = 0; attempt < 50 && !d; ++attempt) {  // the slot is freed as the stream ends
+    auto o = std::make_unique<Open>();
+    if (open(o.get(), &refused))
+      d = std::move(o);
+    else
+      std::this_thread::sleep_for(20ms);
+  }
+  ASSERT_TRUE(d) << refused.error_message();
+  d->stream->WritesDone();
+  EXPECT_TRUE(d->stream->Finish().ok());
+  b.stream->WritesDone();
+  EXPECT_TRUE(b.stream->Finish().ok());
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
 TEST(ServerMemoryBudgetTest, SessionsAndScansOverTheBudgetAreRefused) {
   // The small map's live grids and optimiser state take about 5 MB: an 8 MB budget holds one
   // session, not two.
