@@ -106,6 +106,33 @@ namespace {
 // are the same whatever vector width the compiler picks.
 constexpr int kLanes = 8;
 
+// Outputs o, o + G, ... of layer L in groups of G (while a whole group fits), for one block of
+// kLanes points; returns the first output not done.
+template <int G, typename Layer>
+__attribute__((always_inline)) inline int OutputGroups(const Layer& L, const float* W,
+                                                       const float* b, bool relu, const float* in,
+                                                       float* out, int o) {
+  for (; o + G <= L.out; o += G) {
+    float s[G][kLanes];
+    const float* w[G];
+    for (int q = 0; q < G; ++q) {
+      w[q] = W + size_t(o + q) * L.in;
+      for (int j = 0; j < kLanes; ++j) s[q][j] = b[o + q];
+    }
+    for (int i = 0; i < L.in; ++i) {
+      const float* x = in + size_t(i) * kLanes;
+      for (int q = 0; q < G; ++q) {
+        const float wi = w[q][i];
+        for (int j = 0; j < kLanes; ++j) s[q][j] += wi * x[j];
+      }
+    }
+    for (int q = 0; q < G; ++q)
+      for (int j = 0; j < kLanes; ++j)
+        out[(o + q) * kLanes + j] = relu ? std::max(s[q][j], 0.f) : s[q][j];
+  }
+  return o;
+}
+
 template <typename Layers>
 __attribute__((always_inline)) inline const float* LayersForBlock(const Layers& layers,
                                                                   const float* params, float* in,
@@ -117,26 +144,11 @@ __attribute__((always_inline)) inline const float* LayersForBlock(const Layers& 
     const float* b = params + L.bias_offset;
     const bool relu = k + 1 < nl;
     int o = 0;
-    // Four outputs at a time: four independent chains of adds instead of one, each output's sum
-    // still taken in the one-point order.
-    for (; o + 4 <= L.out; o += 4) {
-      float s[4][kLanes];
-      const float* w[4];
-      for (int q = 0; q < 4; ++q) {
-        w[q] = W + size_t(o + q) * L.in;
-        for (int j = 0; j < kLanes; ++j) s[q][j] = b[o + q];
-      }
-      for (int i = 0; i < L.in; ++i) {
-        const float* x = in + size_t(i) * kLanes;
-        for (int q = 0; q < 4; ++q) {
-          const float wi = w[q][i];
-          for (int j = 0; j < kLanes; ++j) s[q][j] += wi * x[j];
-        }
-      }
-      for (int q = 0; q < 4; ++q)
-        for (int j = 0; j < kLanes; ++j)
-          out[(o + q) * kLanes + j] = relu ? std::max(s[q][j], 0.f) : s[q][j];
-    }
+    // Several outputs at a time: independent chains of adds (eight hide the add latency on
+    // current cores; four where fewer are left), each output's sum still taken in the one-point
+    // order.
+    o = OutputGroups<8>(L, W, b, relu, in, out, o);
+    o = OutputGroups<4>(L, W, b, relu, in, out, o);
     for (; o < L.out; ++o) {
       float s[kLanes];
       for (int j = 0; j < kLanes; ++j) s[j] = b[o];
