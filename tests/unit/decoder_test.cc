@@ -209,6 +209,54 @@ TEST(DecoderTest, ForwardIsBitIdenticalWhateverTheBatch) {
   }
 }
 
+// The gradient path against plain one-point loops (bias, then inputs in order; the backward pass
+// over outputs in order, skipping outputs whose ReLU was off): the same bits, which the SDF-only
+// blocks must match too (ForwardIsBitIdenticalWhateverTheBatch).
+TEST(DecoderTest, GradientPathEqualsTheOnePointLoopsBitForBit) {
+  const int n = 203;
+  for (int hidden = 0; hidden <= 2; ++hidden) {
+    Decoder dec(kInput, MakeDecoderConfig(hidden));
+    std::vector<float> x = RandomVector(size_t(n) * kInput, -1.f, 1.f, 70 + hidden);
+    std::vector<float> sdf(n), dsdf(size_t(n) * kInput);
+    dec.Forward(x.data(), n, sdf.data(), dsdf.data());
+    const auto& layers = dec.layers();
+    const std::vector<float>& params = dec.params();
+    const int nl = int(layers.size());
+    for (int p = 0; p < n; ++p) {
+      std::vector<std::vector<float>> act(size_t(nl) + 1);
+      act[0].assign(x.begin() + size_t(p) * kInput, x.begin() + size_t(p + 1) * kInput);
+      for (int k = 0; k < nl; ++k) {
+        const Decoder::Layer& L = layers[size_t(k)];
+        act[size_t(k) + 1].resize(size_t(L.out));
+        for (int o = 0; o < L.out; ++o) {
+          float s = params[L.bias_offset + size_t(o)];
+          for (int i = 0; i < L.in; ++i)
+            s += params[L.weight_offset + size_t(o) * L.in + size_t(i)] * act[size_t(k)][size_t(i)];
+          act[size_t(k) + 1][size_t(o)] = k + 1 < nl ? std::max(s, 0.f) : s;
+        }
+      }
+      std::vector<float> delta{1.f}, prev;
+      for (int k = nl - 1; k >= 0; --k) {
+        const Decoder::Layer& L = layers[size_t(k)];
+        prev.assign(size_t(L.in), 0.f);
+        for (int o = 0; o < L.out; ++o) {
+          if (delta[size_t(o)] == 0.f) continue;
+          for (int i = 0; i < L.in; ++i)
+            prev[size_t(i)] +=
+                delta[size_t(o)] * params[L.weight_offset + size_t(o) * L.in + size_t(i)];
+        }
+        delta.assign(size_t(L.in), 0.f);
+        for (int i = 0; i < L.in; ++i)
+          delta[size_t(i)] = act[size_t(k)][size_t(i)] > 0.f ? prev[size_t(i)] : 0.f;
+      }
+      ASSERT_EQ(std::memcmp(&act[size_t(nl)][0], &sdf[size_t(p)], sizeof(float)), 0)
+          << hidden << " " << p;
+      ASSERT_EQ(std::memcmp(prev.data(), &dsdf[size_t(p) * kInput], kInput * sizeof(float)), 0)
+          << hidden << " " << p;
+    }
+  }
+}
+
 TEST(DecoderTest, AnalyticPositionGradientMatchesFiniteDifferences) {
   absl::StatusOr<MapperConfig> config = MakePreset("maicity");
   ASSERT_TRUE(config.ok());
