@@ -73,27 +73,43 @@ class GridEncoder {
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
       lv.rows.resize(count * D_);
       lv.have.assign(count, 0);
+      // Per axis and block-local coordinate: the lattice cell (from lo) and the fraction in it,
+      // computed once per block instead of per point (the same arithmetic, so the same bits).
+      const float inv = 1.f / float(lv.scale);
+      for (int a = 0; a < 3; ++a) {
+        lv.cell[a].resize(size_t(n));
+        lv.frac[a].resize(size_t(n));
+        for (int t = 0; t < n; ++t) {
+          const int m = point0[a] + t;
+          const int base = FloorDiv(m, lv.scale);
+          lv.cell[a][size_t(t)] = base - lv.lo[a];
+          lv.frac[a][size_t(t)] = float(m - base * lv.scale) * inv;
+        }
+      }
     }
   }
 
   // Features (L·D floats) at block-local grid point m.
   void Encode(const Int3& m_local, float* out) {
-    const Int3 m = point0_ + m_local;
     for (int l = 0; l < L_; ++l) {
       Level& lv = levels_[l];
-      const Int3 base = FloorDiv(m, Int3::Constant(lv.scale));
-      const float inv = 1.f / float(lv.scale);
       float f[3];
-      for (int a = 0; a < 3; ++a) f[a] = float(m[a] - base[a] * lv.scale) * inv;
+      Int3 b;
+      for (int a = 0; a < 3; ++a) {
+        f[a] = lv.frac[a][size_t(m_local[a])];
+        b[a] = lv.cell[a][size_t(m_local[a])];
+      }
       float* o = out + size_t(l) * D_;
       std::fill_n(o, D_, 0.f);
-      const Int3 b = base - lv.lo;
       for (int c = 0; c < 8; ++c) {
         const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
         const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
                     tz = cz ? f[2] : 1.f - f[2];
-        const float* row = Row(l, b + Int3(cx, cy, cz));
         const float wc = tx * ty * tz;
+        // A corner of weight zero (the point lies on the lattice plane of the other side) adds
+        // nothing: +0 plus ±0 is +0, and finite sums keep their bits. Its row is not read.
+        if (wc == 0.f) continue;
+        const float* row = Row(l, b + Int3(cx, cy, cz));
         for (int d = 0; d < D_; ++d) o[d] += wc * row[d];
       }
     }
@@ -105,6 +121,8 @@ class GridEncoder {
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
     std::vector<float> rows;
     std::vector<uint8_t> have;
+    std::vector<int> cell[3];    // per axis: lattice cell of block-local coordinate t, from lo
+    std::vector<float> frac[3];  // per axis: its fraction within that cell
   };
 
   const float* Row(int l, const Int3& g) {
