@@ -158,11 +158,19 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
   // any of them is, so that meshes of neighbouring observed voxels join up.
   constexpr int V = B + 2;
   std::vector<uint8_t> voxel_state(size_t(V) * V * V, 0);
+  auto state_of = [&](const Int3& v) -> uint8_t& {
+    return voxel_state[(size_t(v.x() + 1) * V + (v.y() + 1)) * V + (v.z() + 1)];
+  };
+  // Inside the block the tile's voxels are exactly `voxels`: marked here, so that only the ring
+  // around the block looks them up in the tile's set.
+  for (const Int3& g : voxels) state_of(g - voxel0) = 2;
   auto voxel_observed = [&](const Int3& v) {
-    uint8_t& s = voxel_state[(size_t(v.x() + 1) * V + (v.y() + 1)) * V + (v.z() + 1)];
+    uint8_t& s = state_of(v);
     if (s == 0) {
       const Int3 g = voxel0 + v;
-      s = (tile_voxels.count(g) || (reader.ObservedBits(g) & LocalMap::kObserved)) ? 2 : 1;
+      const bool inside = (v.array() >= 0).all() && (v.array() < B).all();
+      s = ((!inside && tile_voxels.count(g)) || (reader.ObservedBits(g) & LocalMap::kObserved)) ? 2
+                                                                                                : 1;
     }
     return s == 2;
   };
