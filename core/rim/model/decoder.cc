@@ -56,46 +56,7 @@ void Decoder::Forward(const float* features, int n, float* sdf, float* dsdf_dfea
     ForwardBlocked(features, n, sdf);
     return;
   }
-  const int nl = int(layers_.size());
-  std::vector<float> act(size_t(nl + 1) * max_width_);
-  std::vector<float> delta(max_width_), prev(max_width_);
-  for (int p = 0; p < n; ++p) {
-    const float* x = features + size_t(p) * input_dim_;
-    std::copy(x, x + input_dim_, act.begin());
-    for (int k = 0; k < nl; ++k) {
-      const Layer& L = layers_[k];
-      const float* W = &params_[L.weight_offset];
-      const float* b = &params_[L.bias_offset];
-      const float* a_in = &act[size_t(k) * max_width_];
-      float* a_out = &act[size_t(k + 1) * max_width_];
-      for (int o = 0; o < L.out; ++o) {
-        float s = b[o];
-        const float* w = W + size_t(o) * L.in;
-        for (int i = 0; i < L.in; ++i) s += w[i] * a_in[i];
-        a_out[o] = (k + 1 < nl) ? std::max(s, 0.f) : s;
-      }
-    }
-    sdf[p] = act[size_t(nl) * max_width_];
-    if (!dsdf_dfeatures) continue;
-    // Back-propagate d sdf through the layers; ReLU passes gradient where its output was > 0.
-    delta[0] = 1.f;
-    for (int k = nl - 1; k >= 0; --k) {
-      const Layer& L = layers_[k];
-      const float* W = &params_[L.weight_offset];
-      std::fill(prev.begin(), prev.begin() + L.in, 0.f);
-      for (int o = 0; o < L.out; ++o) {
-        const float d = delta[o];
-        if (d == 0.f) continue;
-        const float* w = W + size_t(o) * L.in;
-        for (int i = 0; i < L.in; ++i) prev[i] += d * w[i];
-      }
-      if (k > 0) {
-        const float* a_in = &act[size_t(k) * max_width_];
-        for (int i = 0; i < L.in; ++i) delta[i] = a_in[i] > 0.f ? prev[i] : 0.f;
-      }
-    }
-    std::copy(prev.begin(), prev.begin() + input_dim_, dsdf_dfeatures + size_t(p) * input_dim_);
-  }
+  ForwardGradBlocked(features, n, sdf, dsdf_dfeatures);
 }
 
 namespace {
@@ -149,17 +110,7 @@ __attribute__((always_inline)) inline const float* LayersForBlock(const Layers& 
     // order.
     o = OutputGroups<8>(L, W, b, relu, in, out, o);
     o = OutputGroups<4>(L, W, b, relu, in, out, o);
-    for (; o < L.out; ++o) {
-      float s[kLanes];
-      for (int j = 0; j < kLanes; ++j) s[j] = b[o];
-      const float* w = W + size_t(o) * L.in;
-      for (int i = 0; i < L.in; ++i) {
-        const float wi = w[i];
-        const float* x = in + size_t(i) * kLanes;
-        for (int j = 0; j < kLanes; ++j) s[j] += wi * x[j];
-      }
-      for (int j = 0; j < kLanes; ++j) out[o * kLanes + j] = relu ? std::max(s[j], 0.f) : s[j];
-    }
+    OutputGroups<1>(L, W, b, relu, in, out, o);
     std::swap(in, out);
   }
   return in;
@@ -183,6 +134,93 @@ __attribute__((always_inline)) inline void ForwardBlocks(const Layers& layers, c
   }
 }
 
+// Input gradients g[i] = sum over outputs o, in order, of delta[o]·W[o][i], for inputs i, i + 1,
+// ... in groups of G, one block of kLanes points; returns the first input not done. Each sum stays
+// in registers across the outputs. The one-point loop skips outputs whose delta is zero (the ReLU
+// was off); adding their product instead gives the same bits: it is ±0, a sum that starts at +0
+// never becomes -0, and x + ±0 is x (the weights are finite). Without the test the loop vectorises.
+template <int G, typename Layer>
+__attribute__((always_inline)) inline int InputGradGroups(const Layer& L, const float* W,
+                                                          const float* delta, float* g, int i) {
+  for (; i + G <= L.in; i += G) {
+    float s[G][kLanes];
+    for (int q = 0; q < G; ++q)
+      for (int j = 0; j < kLanes; ++j) s[q][j] = 0.f;
+    for (int o = 0; o < L.out; ++o) {
+      const float* d = delta + size_t(o) * kLanes;
+      const float* w = W + size_t(o) * L.in + i;
+      for (int q = 0; q < G; ++q) {
+        const float wi = w[q];
+        for (int j = 0; j < kLanes; ++j) s[q][j] += d[j] * wi;
+      }
+    }
+    for (int q = 0; q < G; ++q)
+      for (int j = 0; j < kLanes; ++j) g[(i + q) * kLanes + j] = s[q][j];
+  }
+  return i;
+}
+
+// Values and d sdf / d features for blocks of points, lane-minor like ForwardBlocks. Each lane does
+// the one-point arithmetic in its order: forward as LayersForBlock; backward from delta = 1 at the
+// output, each input's gradient summed over the layer's outputs in order (skipping outputs whose
+// delta is zero) and masked where the input's ReLU was off. So values have the SDF-only path's
+// bits, and a point's gradient does not depend on its batch.
+template <typename Layers>
+__attribute__((always_inline)) inline void ForwardGradBlocks(const Layers& layers,
+                                                             const float* params, int input_dim,
+                                                             int max_width, const float* features,
+                                                             int n, float* sdf, float* dsdf) {
+  const int nl = int(layers.size());
+  const size_t stride = size_t(max_width) * kLanes;
+  std::vector<float> act(size_t(nl + 1) * stride), delta(stride), grad(stride);
+  for (int p0 = 0; p0 < n; p0 += kLanes) {
+    const int m = std::min(kLanes, n - p0);
+    for (int i = 0; i < input_dim; ++i)
+      for (int j = 0; j < kLanes; ++j)
+        act[size_t(i) * kLanes + j] = j < m ? features[size_t(p0 + j) * input_dim + i] : 0.f;
+    for (int k = 0; k < nl; ++k) {
+      const auto& L = layers[k];
+      const float* W = params + L.weight_offset;
+      const float* b = params + L.bias_offset;
+      const bool relu = k + 1 < nl;
+      const float* in = act.data() + size_t(k) * stride;
+      float* out = act.data() + size_t(k + 1) * stride;
+      int o = OutputGroups<8>(L, W, b, relu, in, out, 0);
+      o = OutputGroups<4>(L, W, b, relu, in, out, o);
+      OutputGroups<1>(L, W, b, relu, in, out, o);
+    }
+    const float* y = act.data() + size_t(nl) * stride;
+    for (int j = 0; j < m; ++j) sdf[p0 + j] = y[j];
+    for (int j = 0; j < kLanes; ++j) delta[j] = 1.f;
+    for (int k = nl - 1; k >= 0; --k) {
+      const auto& L = layers[k];
+      const float* W = params + L.weight_offset;
+      int i = InputGradGroups<8>(L, W, delta.data(), grad.data(), 0);
+      i = InputGradGroups<4>(L, W, delta.data(), grad.data(), i);
+      InputGradGroups<1>(L, W, delta.data(), grad.data(), i);
+      if (k > 0) {
+        const float* a_in = act.data() + size_t(k) * stride;
+        for (int t = 0; t < L.in * kLanes; ++t) delta[t] = a_in[t] > 0.f ? grad[t] : 0.f;
+      }
+    }
+    for (int j = 0; j < m; ++j)
+      for (int i = 0; i < input_dim; ++i)
+        dsdf[size_t(p0 + j) * input_dim + i] = grad[size_t(i) * kLanes + j];
+  }
+}
+
+__attribute__((target("avx2"))) void ForwardGradBlocksAvx2(
+    const std::vector<Decoder::Layer>& layers, const float* params, int input_dim, int max_width,
+    const float* features, int n, float* sdf, float* dsdf) {
+  ForwardGradBlocks(layers, params, input_dim, max_width, features, n, sdf, dsdf);
+}
+
+void ForwardGradBlocksBaseline(const std::vector<Decoder::Layer>& layers, const float* params,
+                               int input_dim, int max_width, const float* features, int n,
+                               float* sdf, float* dsdf) {
+  ForwardGradBlocks(layers, params, input_dim, max_width, features, n, sdf, dsdf);
+}
+
 // The same code compiled for 8-wide AVX registers (still without FMA), chosen at run time.
 __attribute__((target("avx2"))) void ForwardBlocksAvx2(const std::vector<Decoder::Layer>& layers,
                                                        const float* params, int input_dim,
@@ -204,6 +242,12 @@ void Decoder::ForwardBlocked(const float* features, int n, float* sdf) const {
   static const bool avx2 = __builtin_cpu_supports("avx2");
   (avx2 ? ForwardBlocksAvx2 : ForwardBlocksBaseline)(layers_, params_.data(), input_dim_,
                                                      max_width_, features, n, sdf);
+}
+
+void Decoder::ForwardGradBlocked(const float* features, int n, float* sdf, float* dsdf) const {
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  (avx2 ? ForwardGradBlocksAvx2 : ForwardGradBlocksBaseline)(layers_, params_.data(), input_dim_,
+                                                             max_width_, features, n, sdf, dsdf);
 }
 
 void Decoder::Step(const AdamHyper& hyper, const std::vector<float>& grad) {

@@ -103,6 +103,8 @@ class Decoder {
  private:
   // Forward without the gradient, points in blocks across SIMD lanes (same bits per point).
   void ForwardBlocked(const float* features, int n, float* sdf) const;
+  // Forward with d sdf / d features, the same way (same bits per point as one at a time).
+  void ForwardGradBlocked(const float* features, int n, float* sdf, float* dsdf) const;
 
   int input_dim_;
   std::vector<Layer> layers_;
