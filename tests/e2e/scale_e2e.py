@@ -68,6 +68,38 @@ def wait_port(port: int, timeout_s: float) -> bool:
     return False
 
 
+def servers_up(stats_port: int) -> Dict[str, str]:
+    """server -> status (UP, DOWN, ...) of the replicas' backend, from HAProxy's CSV stats."""
+    try:
+        text = urllib.request.urlopen(f"http://127.0.0.1:{stats_port}/stats;csv",
+                                      timeout=5).read().decode()
+    except OSError:
+        return {}
+    lines = text.splitlines()
+    if not lines:
+        return {}
+    header = lines[0].lstrip("# ").split(",")
+    status = header.index("status") if "status" in header else 17
+    out = {}
+    for line in lines[1:]:
+        cells = line.split(",")
+        if len(cells) > status and cells[0] == "rim_replicas" and cells[1].startswith("rim-"):
+            out[cells[1]] = cells[status]
+    return out
+
+
+def wait_servers_up(stats_port: int, names: List[str], timeout_s: float) -> bool:
+    """Until HAProxy counts every named replica UP: before that its ring lacks them, and a
+    session created then would open on a replica its robot is not routed to afterwards."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        up = servers_up(stats_port)
+        if all(up.get(n) == "UP" for n in names):
+            return True
+        time.sleep(0.2)
+    return False
+
+
 class Replica:
     def __init__(self, build: str, data: str, logs: str, index: int) -> None:
         self.name = f"rim-{index}"
@@ -123,13 +155,17 @@ def main() -> int:
                RIM_PROXY_STATS_BIND=f"127.0.0.1:{stats_port}",
                **{f"RIM_REPLICA_{r.name[-1]}": f"127.0.0.1:{r.port}" for r in replicas})
     proxy_log = open(os.path.join(logs, "haproxy.log"), "w")
+    # The proxy starts once the replicas listen, and sessions are created once it counts them all
+    # UP: a replica its first checks found closed stays off the ring for a few seconds.
+    replicas_listening = all(wait_port(r.port, 60) for r in replicas)
     proxy = subprocess.Popen([haproxy, "-db", "-f", cfg], env=env, stdout=proxy_log,
                              stderr=subprocess.STDOUT)
     via_proxy = dict(os.environ, RIM_SERVER=f"127.0.0.1:{proxy_port}")
     streams: Dict[str, subprocess.Popen] = {}
     try:
-        f.check(all(wait_port(r.port, 60) for r in replicas) and wait_port(proxy_port, 30),
-                "3 replicas and HAProxy listening")
+        f.check(replicas_listening and wait_port(proxy_port, 30) and
+                wait_servers_up(stats_port, [r.name for r in replicas], 30),
+                "3 replicas listening, HAProxy listening and counting them UP")
         # Health through the proxy: no x-robot-id, so round robin across the replicas.
         for _ in range(100):
             if subprocess.run([rimctl, "health"], env=via_proxy,
