@@ -70,7 +70,7 @@ TEST(WorkerPoolTest, WorkersFollowTheCallersPriorityDown) {
     std::mutex mu;
     std::set<int> nices;
     std::set<std::thread::id> ids;
-    for (int round = 0; round < 200 && ids.size() < 3; ++round) {
+    for (int round = 0; round < 2000 && ids.size() < 3; ++round) {
       pool.Run(12, [&](int) {
         std::lock_guard<std::mutex> lock(mu);
         nices.insert(ThisThreadNice());
