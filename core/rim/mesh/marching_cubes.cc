@@ -165,37 +165,29 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples) {
   return MarchingCubes(cells, samples, nullptr);
 }
 
-Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
-                   std::vector<GridEdge>* vertex_edges) {
+namespace {
+
+// The marching itself, shared by the sparse and the dense entry points so that both give the same
+// mesh (same vertices in the same order, same faces) from the same values. `Grid` supplies
+//   bool FirstVisit(const Int3& cell): false for a cell already meshed in this call;
+//   const Sample& At(const Int3& g): the value at grid point g, looked up at most once;
+//   uint32_t& VertexSlot(const GridEdge& e): the vertex on edge e, kNoVertex until created.
+constexpr uint32_t kNoVertex = ~0u;
+
+template <typename Grid>
+Mesh March(const std::vector<Int3>& cells, float step_m, const Eigen::Vector3f& origin_m,
+           Grid& grid, std::vector<GridEdge>* vertex_edges) {
   Mesh mesh;
   if (vertex_edges) vertex_edges->clear();
-  if (!samples.lookup) return mesh;
   const CaseTable& table = GetCaseTable();
-
-  absl::flat_hash_map<Int3, Sample, Int3Hash, Int3Equal> cache;
-  absl::flat_hash_map<GridEdge, uint32_t, GridEdgeHash> edge_vertex;
-  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_cells;
-  cache.reserve(cells.size() * 2);
-  done_cells.reserve(cells.size());
-
-  auto sample_at = [&](const Int3& g) -> const Sample& {
-    auto [it, inserted] = cache.try_emplace(g);
-    if (inserted) {
-      float value = 0.0f;
-      it->second.valid = samples.lookup(g, &value) && std::isfinite(value);
-      it->second.value = value;
-    }
-    return it->second;
-  };
-
   for (const Int3& cell : cells) {
-    if (!done_cells.insert(cell).second) continue;
+    if (!grid.FirstVisit(cell)) continue;
     std::array<float, kNumCorners> values;
     int mask = 0;
     bool complete = true;
     for (int c = 0; c < kNumCorners; ++c) {
       // Stop at the first missing corner: the cell is dropped anyway and lookups may be costly.
-      const Sample& s = sample_at(cell + CornerOffset(c));
+      const Sample& s = grid.At(cell + CornerOffset(c));
       if (!s.valid) {
         complete = false;
         break;
@@ -212,9 +204,9 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
         const int lo = table.edge_lower_corner[e];
         const int axis = table.edge_axis[e];
         const GridEdge key{cell + CornerOffset(lo), axis};
-        auto [it, inserted] =
-            edge_vertex.try_emplace(key, static_cast<uint32_t>(mesh.vertices.size()));
-        if (inserted) {
+        uint32_t& slot = grid.VertexSlot(key);
+        if (slot == kNoVertex) {
+          slot = static_cast<uint32_t>(mesh.vertices.size());
           // Only the two edge values enter, lower grid point first, so any call that sees the
           // same values computes the same bits for this vertex.
           const float v0 = values[lo];
@@ -224,18 +216,99 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
           for (int i = 0; i < 3; ++i) {
             float coord = static_cast<float>(key.lower[i]);
             if (i == axis) coord += frac;
-            p[i] = samples.origin_m[i] + samples.step_m * coord;
+            p[i] = origin_m[i] + step_m * coord;
           }
           mesh.vertices.push_back(p);
           if (vertex_edges) vertex_edges->push_back(key);
         }
-        face[k] = it->second;
+        face[k] = slot;
       }
       if (face[0] == face[1] || face[1] == face[2] || face[0] == face[2]) continue;
       mesh.faces.push_back(face);
     }
   }
   return mesh;
+}
+
+// Grid points in hash maps, values from the caller's lookup.
+class SparseGrid {
+ public:
+  SparseGrid(const GridSamples& samples, size_t cells) : samples_(samples) {
+    cache_.reserve(cells * 2);
+    done_.reserve(cells);
+  }
+  bool FirstVisit(const Int3& cell) { return done_.insert(cell).second; }
+  const Sample& At(const Int3& g) {
+    auto [it, inserted] = cache_.try_emplace(g);
+    if (inserted) {
+      float value = 0.0f;
+      it->second.valid = samples_.lookup(g, &value) && std::isfinite(value);
+      it->second.value = value;
+    }
+    return it->second;
+  }
+  uint32_t& VertexSlot(const GridEdge& e) { return edges_.try_emplace(e, kNoVertex).first->second; }
+
+ private:
+  const GridSamples& samples_;
+  absl::flat_hash_map<Int3, Sample, Int3Hash, Int3Equal> cache_;
+  absl::flat_hash_map<GridEdge, uint32_t, GridEdgeHash> edges_;
+  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_;
+};
+
+// Grid points of one dense block, in arrays.
+class DenseGrid {
+ public:
+  explicit DenseGrid(const DenseGridSamples& d) : d_(d) {
+    const size_t n3 = size_t(d.n) * d.n * d.n;
+    samples_.resize(n3);
+    for (size_t i = 0; i < n3; ++i) {
+      const int32_t idx = d.index[i];
+      if (idx < 0) continue;
+      const float v = d.values[size_t(idx)];
+      samples_[i] = {v, std::isfinite(v)};
+    }
+    done_.assign(n3, 0);
+    edges_.assign(3 * n3, kNoVertex);
+  }
+  bool FirstVisit(const Int3& cell) {
+    const Int3 m = cell - d_.first;
+    // A cell must have all its corners in the block: one that does not is never complete.
+    if ((m.array() < 0).any() || (m.array() >= d_.n - 1).any()) return false;
+    uint8_t& done = done_[Local(m)];
+    if (done) return false;
+    done = 1;
+    return true;
+  }
+  const Sample& At(const Int3& g) { return samples_[Local(g - d_.first)]; }
+  uint32_t& VertexSlot(const GridEdge& e) {
+    return edges_[size_t(e.axis) * samples_.size() + Local(e.lower - d_.first)];
+  }
+
+ private:
+  size_t Local(const Int3& m) const { return (size_t(m.x()) * d_.n + m.y()) * d_.n + m.z(); }
+  const DenseGridSamples& d_;
+  std::vector<Sample> samples_;
+  std::vector<uint8_t> done_;
+  std::vector<uint32_t> edges_;
+};
+
+}  // namespace
+
+Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges) {
+  if (!samples.lookup) {
+    if (vertex_edges) vertex_edges->clear();
+    return Mesh();
+  }
+  SparseGrid grid(samples, cells.size());
+  return March(cells, samples.step_m, samples.origin_m, grid, vertex_edges);
+}
+
+Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges) {
+  DenseGrid grid(samples);
+  return March(cells, samples.step_m, samples.origin_m, grid, vertex_edges);
 }
 
 }  // namespace rim

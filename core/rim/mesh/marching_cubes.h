@@ -60,6 +60,23 @@ struct GridEdgeHash {
 Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
                    std::vector<GridEdge>* vertex_edges);
 
+// A block of n × n × n grid points, first..first + (n-1, n-1, n-1): grid point first + m has the
+// value values[index[(m.x·n + m.y)·n + m.z]], or none where that index is negative.
+struct DenseGridSamples {
+  float step_m = 0.05f;
+  Eigen::Vector3f origin_m = Eigen::Vector3f::Zero();
+  Int3 first = Int3::Zero();
+  int n = 0;
+  const int32_t* index = nullptr;  // n³ entries
+  const float* values = nullptr;
+};
+
+// The same mesh as the GridSamples overload would give from the same values (same vertices in the
+// same order, same faces), with the grid points in arrays instead of hash maps. Cells with a
+// corner outside the block are not meshed.
+Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges);
+
 // Number of triangles the generated case table gives for a corner sign mask (bit i set = corner i
 // negative, corner numbering as above). Exposed for tests.
 int MarchingCubesTriangleCount(uint8_t case_mask);

@@ -62,7 +62,7 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
 class GridEncoder {
  public:
   GridEncoder(const MapGeometry& geo, int r, const Int3& point0, int n, FeatureReader& reader)
-      : L_(geo.levels()), D_(geo.feature_dim()), point0_(point0), reader_(reader) {
+      : L_(geo.levels()), D_(geo.feature_dim()), reader_(reader) {
     for (int l = 0; l < L_; ++l) {
       Level& lv = levels_[l];
       lv.scale = r << l;
@@ -73,71 +73,96 @@ class GridEncoder {
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
       lv.rows.resize(count * D_);
       lv.have.assign(count, 0);
-      // Per axis and block-local coordinate: the lattice cell (from lo) and the fraction in it,
-      // computed once per block instead of per point (the same arithmetic, so the same bits).
+      // Per axis and block-local coordinate: the lattice cell (from lo), as a row-index stride
+      // multiple, and the weights of its two sides, computed once per block instead of per point
+      // (the same arithmetic, so the same bits).
+      const size_t stride[3] = {size_t(lv.dims.y()) * lv.dims.z(), size_t(lv.dims.z()), 1};
       const float inv = 1.f / float(lv.scale);
       for (int a = 0; a < 3; ++a) {
-        lv.cell[a].resize(size_t(n));
-        lv.frac[a].resize(size_t(n));
+        lv.axis[a].resize(size_t(n));
         for (int t = 0; t < n; ++t) {
           const int m = point0[a] + t;
           const int base = FloorDiv(m, lv.scale);
-          lv.cell[a][size_t(t)] = base - lv.lo[a];
-          lv.frac[a][size_t(t)] = float(m - base * lv.scale) * inv;
+          const float f = float(m - base * lv.scale) * inv;
+          lv.axis[a][size_t(t)] = {size_t(base - lv.lo[a]) * stride[a], 1.f - f, f};
         }
       }
+      lv.corner_offset[0] = 0;
+      for (int c = 1; c < 8; ++c)
+        lv.corner_offset[c] =
+            (c >> 2 & 1) * stride[0] + (c >> 1 & 1) * stride[1] + (c & 1) * stride[2];
     }
   }
 
-  // Features (L·D floats) at block-local grid point m.
-  void Encode(const Int3& m_local, float* out) {
-    for (int l = 0; l < L_; ++l) {
-      Level& lv = levels_[l];
-      float f[3];
-      Int3 b;
-      for (int a = 0; a < 3; ++a) {
-        f[a] = lv.frac[a][size_t(m_local[a])];
-        b[a] = lv.cell[a][size_t(m_local[a])];
-      }
-      float* o = out + size_t(l) * D_;
-      std::fill_n(o, D_, 0.f);
-      for (int c = 0; c < 8; ++c) {
-        const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-        const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
-                    tz = cz ? f[2] : 1.f - f[2];
-        const float wc = tx * ty * tz;
-        // A corner of weight zero (the point lies on the lattice plane of the other side) adds
-        // nothing: +0 plus ±0 is +0, and finite sums keep their bits. Its row is not read.
-        if (wc == 0.f) continue;
-        const float* row = Row(l, b + Int3(cx, cy, cz));
-        for (int d = 0; d < D_; ++d) o[d] += wc * row[d];
-      }
-    }
+  // Features (L·D floats per point) at the block-local grid points.
+  void EncodeAll(const std::vector<Int3>& points, float* out) {
+    static const bool avx2 = __builtin_cpu_supports("avx2");
+    if (D_ == 8)
+      avx2 ? EncodeAvx2(points, out) : EncodeAll<8>(points, out);
+    else
+      EncodeAll<0>(points, out);
   }
 
  private:
+  struct Axis {
+    size_t offset;  // the lattice cell's index part along this axis
+    float w[2];     // weights of the cell's lower and upper side: 1 − f and f
+  };
   struct Level {
     int scale = 1;  // grid points per voxel of the level
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
     std::vector<float> rows;
     std::vector<uint8_t> have;
-    std::vector<int> cell[3];    // per axis: lattice cell of block-local coordinate t, from lo
-    std::vector<float> frac[3];  // per axis: its fraction within that cell
+    std::vector<Axis> axis[3];  // per axis and block-local coordinate
+    size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
   };
 
-  const float* Row(int l, const Int3& g) {
-    Level& lv = levels_[l];
-    const size_t i = (size_t(g.x()) * lv.dims.y() + g.y()) * lv.dims.z() + g.z();
+  __attribute__((target("avx2"))) void EncodeAvx2(const std::vector<Int3>& points, float* out) {
+    EncodeAll<8>(points, out);
+  }
+
+  // For each level and corner c = 4·cx + 2·cy + cz in order, adds weight·row to the level's D
+  // outputs (starting from zero), the weight being (tx·ty)·tz; corners of weight zero (the point
+  // lies on the lattice plane of the other side) add nothing: +0 plus ±0 is +0, and finite sums
+  // keep their bits, so their rows are not read. DC = D when known at compile time, else 0.
+  template <int DC>
+  __attribute__((always_inline)) inline void EncodeAll(const std::vector<Int3>& points,
+                                                       float* out) {
+    const int D = DC > 0 ? DC : D_;
+    for (const Int3& m : points) {
+      for (int l = 0; l < L_; ++l, out += D) {
+        Level& lv = levels_[l];
+        const Axis& ax = lv.axis[0][size_t(m.x())];
+        const Axis& ay = lv.axis[1][size_t(m.y())];
+        const Axis& az = lv.axis[2][size_t(m.z())];
+        const size_t cell = ax.offset + ay.offset + az.offset;
+        float o[DC > 0 ? DC : 64];
+        for (int d = 0; d < D; ++d) o[d] = 0.f;
+        for (int c = 0; c < 8; ++c) {
+          const float tx = ax.w[c >> 2 & 1], ty = ay.w[c >> 1 & 1], tz = az.w[c & 1];
+          const float wc = tx * ty * tz;
+          if (wc == 0.f) continue;
+          const float* row = Row(lv, cell + lv.corner_offset[c]);
+          for (int d = 0; d < D; ++d) o[d] += wc * row[d];
+        }
+        for (int d = 0; d < D; ++d) out[d] = o[d];
+      }
+    }
+  }
+
+  const float* Row(Level& lv, size_t i) {
     float* row = lv.rows.data() + i * D_;
-    if (!lv.have[i]) {
-      std::copy_n(reader_.Get(l, lv.lo + g), D_, row);
+    if (!lv.have[i]) [[unlikely]] {
+      // The row's lattice point, from its index.
+      const int dz = lv.dims.z(), dyz = lv.dims.y() * dz;
+      const Int3 g(int(i / size_t(dyz)), int(i % size_t(dyz)) / dz, int(i % size_t(dz)));
+      std::copy_n(reader_.Get(int(&lv - levels_), lv.lo + g), D_, row);
       lv.have[i] = 1;
     }
     return row;
   }
 
   const int L_, D_;
-  const Int3 point0_;
   FeatureReader& reader_;
   Level levels_[kMaxLevels];
 };
@@ -217,20 +242,15 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
   const int F = src.geometry.encoding_dim();
   std::vector<float> features(points.size() * F), values(points.size());
   GridEncoder encoder(src.geometry, r, point0, n, reader);
-  for (size_t i = 0; i < points.size(); ++i) encoder.Encode(points[i], &features[i * F]);
+  encoder.EncodeAll(points, features.data());
   src.decoder.Forward(features.data(), int(points.size()), values.data());
 
-  GridSamples samples;
+  DenseGridSamples samples;
   samples.step_m = float(step);
-  samples.origin_m = Eigen::Vector3f::Zero();
-  samples.lookup = [&](const Int3& g, float* value) {
-    const Int3 m = g - point0;
-    if ((m.array() < 0).any() || (m.array() >= n).any()) return false;
-    const int32_t idx = point_index[local(m)];
-    if (idx < 0) return false;
-    *value = values[size_t(idx)];
-    return true;
-  };
+  samples.first = point0;
+  samples.n = n;
+  samples.index = point_index.data();
+  samples.values = values.data();
   std::vector<GridEdge> edges;
   Mesh mesh = MarchingCubes(cells, samples, &edges);
   piece->vertices = std::move(mesh.vertices);

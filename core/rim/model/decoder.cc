@@ -67,6 +67,17 @@ namespace {
 // are the same whatever vector width the compiler picks.
 constexpr int kLanes = 8;
 
+// One block's lane values as a vector: the compiler maps it to one AVX register, or two SSE ones
+// in the baseline build. Its arithmetic is lane-wise, so each lane computes the same bits as the
+// one-point loop. The accumulators of a group live in registers; as arrays of floats the compiler
+// kept them on the stack, a load and a store around every add.
+using Lanes = float __attribute__((vector_size(kLanes * sizeof(float))));
+
+// Lanes are loaded and stored by memcpy (no alignment needed) and never passed by value, so no
+// function signature depends on the vector ABI of a target.
+#define RIM_LOAD_LANES(v, p) __builtin_memcpy(&(v), (p), sizeof(Lanes))
+#define RIM_STORE_LANES(p, v) __builtin_memcpy((p), &(v), sizeof(Lanes))
+
 // Outputs o, o + G, ... of layer L in groups of G (while a whole group fits), for one block of
 // kLanes points; returns the first output not done.
 template <int G, typename Layer>
@@ -74,22 +85,25 @@ __attribute__((always_inline)) inline int OutputGroups(const Layer& L, const flo
                                                        const float* b, bool relu, const float* in,
                                                        float* out, int o) {
   for (; o + G <= L.out; o += G) {
-    float s[G][kLanes];
+    Lanes s[G];
     const float* w[G];
     for (int q = 0; q < G; ++q) {
       w[q] = W + size_t(o + q) * L.in;
-      for (int j = 0; j < kLanes; ++j) s[q][j] = b[o + q];
+      float bias[kLanes];
+      std::fill_n(bias, kLanes, b[o + q]);
+      RIM_LOAD_LANES(s[q], bias);
     }
     for (int i = 0; i < L.in; ++i) {
-      const float* x = in + size_t(i) * kLanes;
-      for (int q = 0; q < G; ++q) {
-        const float wi = w[q][i];
-        for (int j = 0; j < kLanes; ++j) s[q][j] += wi * x[j];
-      }
+      Lanes x;
+      RIM_LOAD_LANES(x, in + size_t(i) * kLanes);
+      for (int q = 0; q < G; ++q) s[q] += w[q][i] * x;
     }
-    for (int q = 0; q < G; ++q)
-      for (int j = 0; j < kLanes; ++j)
-        out[(o + q) * kLanes + j] = relu ? std::max(s[q][j], 0.f) : s[q][j];
+    const Lanes zero = {};
+    for (int q = 0; q < G; ++q) {
+      // std::max(s, 0.f): zero where s < 0, else s (so -0 and NaN stay as they are).
+      const Lanes r = relu ? (s[q] < zero ? zero : s[q]) : s[q];
+      RIM_STORE_LANES(out + (o + q) * kLanes, r);
+    }
   }
   return o;
 }
@@ -143,19 +157,15 @@ template <int G, typename Layer>
 __attribute__((always_inline)) inline int InputGradGroups(const Layer& L, const float* W,
                                                           const float* delta, float* g, int i) {
   for (; i + G <= L.in; i += G) {
-    float s[G][kLanes];
-    for (int q = 0; q < G; ++q)
-      for (int j = 0; j < kLanes; ++j) s[q][j] = 0.f;
+    Lanes s[G];
+    for (int q = 0; q < G; ++q) s[q] = Lanes{};
     for (int o = 0; o < L.out; ++o) {
-      const float* d = delta + size_t(o) * kLanes;
+      Lanes d;
+      RIM_LOAD_LANES(d, delta + size_t(o) * kLanes);
       const float* w = W + size_t(o) * L.in + i;
-      for (int q = 0; q < G; ++q) {
-        const float wi = w[q];
-        for (int j = 0; j < kLanes; ++j) s[q][j] += d[j] * wi;
-      }
+      for (int q = 0; q < G; ++q) s[q] += d * w[q];
     }
-    for (int q = 0; q < G; ++q)
-      for (int j = 0; j < kLanes; ++j) g[(i + q) * kLanes + j] = s[q][j];
+    for (int q = 0; q < G; ++q) RIM_STORE_LANES(g + (i + q) * kLanes, s[q]);
   }
   return i;
 }
