@@ -262,6 +262,7 @@ TEST(MarchingCubesTest, DenseBlockGivesTheSparseMeshBitForBit) {
     dense.n = kN;
     dense.index = index.data();
     dense.values = values.data();
+    dense.count = values.size();
     GridSamples sparse;
     sparse.step_m = dense.step_m;
     sparse.origin_m = dense.origin_m;

@@ -256,39 +256,44 @@ class SparseGrid {
   absl::flat_hash_set<Int3, Int3Hash, Int3Equal> done_;
 };
 
-// Grid points of one dense block, in arrays.
+// Grid points of one dense block: values, vertices and visits are kept per point of the
+// caller's list (its index), so nothing of size n³ is allocated or cleared per call.
 class DenseGrid {
  public:
-  explicit DenseGrid(const DenseGridSamples& d) : d_(d) {
-    const size_t n3 = size_t(d.n) * d.n * d.n;
-    samples_.resize(n3);
-    for (size_t i = 0; i < n3; ++i) {
-      const int32_t idx = d.index[i];
-      if (idx < 0) continue;
-      const float v = d.values[size_t(idx)];
-      samples_[i] = {v, std::isfinite(v)};
-    }
-    done_.assign(n3, 0);
-    edges_.assign(3 * n3, kNoVertex);
-  }
+  explicit DenseGrid(const DenseGridSamples& d)
+      : d_(d), done_(d.count, 0), edges_(3 * d.count, kNoVertex) {}
   bool FirstVisit(const Int3& cell) {
     const Int3 m = cell - d_.first;
     // A cell must have all its corners in the block: one that does not is never complete.
     if ((m.array() < 0).any() || (m.array() >= d_.n - 1).any()) return false;
-    uint8_t& done = done_[Local(m)];
+    const int32_t i = Index(m);
+    if (i < 0) return true;  // a missing corner: At() drops the cell
+    uint8_t& done = done_[size_t(i)];
     if (done) return false;
     done = 1;
     return true;
   }
-  const Sample& At(const Int3& g) { return samples_[Local(g - d_.first)]; }
+  const Sample& At(const Int3& g) {
+    const int32_t i = Index(g - d_.first);
+    if (i < 0) {
+      sample_ = Sample{};
+    } else {
+      const float v = d_.values[size_t(i)];
+      sample_ = {v, std::isfinite(v)};
+    }
+    return sample_;
+  }
+  // Only called for an edge of a complete cell, whose lower point has an index.
   uint32_t& VertexSlot(const GridEdge& e) {
-    return edges_[size_t(e.axis) * samples_.size() + Local(e.lower - d_.first)];
+    return edges_[3 * size_t(Index(e.lower - d_.first)) + size_t(e.axis)];
   }
 
  private:
-  size_t Local(const Int3& m) const { return (size_t(m.x()) * d_.n + m.y()) * d_.n + m.z(); }
+  int32_t Index(const Int3& m) const {
+    return d_.index[(size_t(m.x()) * d_.n + m.y()) * d_.n + m.z()];
+  }
   const DenseGridSamples& d_;
-  std::vector<Sample> samples_;
+  Sample sample_;
   std::vector<uint8_t> done_;
   std::vector<uint32_t> edges_;
 };

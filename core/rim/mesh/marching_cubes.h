@@ -67,8 +67,9 @@ struct DenseGridSamples {
   Eigen::Vector3f origin_m = Eigen::Vector3f::Zero();
   Int3 first = Int3::Zero();
   int n = 0;
-  const int32_t* index = nullptr;  // n³ entries
+  const int32_t* index = nullptr;  // n³ entries, each -1 or below `count`
   const float* values = nullptr;
+  size_t count = 0;
 };
 
 // The same mesh as the GridSamples overload would give from the same values (same vertices in the

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <mutex>
 
-#include "absl/container/flat_hash_set.h"
 #include "absl/strings/str_cat.h"
 #include "rim/model/encoder.h"
 
@@ -27,15 +26,13 @@ struct MeshBlockCache::Piece {
 namespace {
 
 using Piece = MeshBlockCache::Piece;
-using VoxelSet = absl::flat_hash_set<Int3, Int3Hash, Int3Equal>;
 
 bool KeyLess(const Int3& a, const Int3& b) {
   return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
 }
 
-// A tile's observed voxels, and the same grouped by mesh block (blocks in key order).
+// A tile's observed voxels grouped by mesh block (blocks in key order).
 struct TileVoxels {
-  VoxelSet all;
   std::vector<std::pair<Int3, std::vector<Int3>>> blocks;
 };
 
@@ -44,7 +41,6 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
   absl::flat_hash_map<Int3, std::vector<Int3>, Int3Hash, Int3Equal> by_block;
   std::shared_lock<std::shared_mutex> lock(src.mutex);
   for (const Int3& g : ObservedVoxels(src, key)) {
-    out.all.insert(g);
     by_block[FloorDiv(g, Int3::Constant(kMeshBlockVoxels))].push_back(g);
   }
   out.blocks.reserve(by_block.size());
@@ -71,7 +67,11 @@ class GridEncoder {
           FloorDiv(point0 + Int3::Constant(n - 1), Int3::Constant(lv.scale)) + Int3::Ones();
       lv.dims = hi - lv.lo + Int3::Ones();
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
-      lv.rows.resize(count * D_);
+      // Rows are written before they are read (`have`): the buffer is the thread's, reused
+      // from block to block without clearing.
+      std::vector<float>& rows = RowBuffer(l);
+      if (rows.size() < count * D_) rows.resize(count * D_);
+      lv.rows = rows.data();
       lv.have.assign(count, 0);
       // Per axis and block-local coordinate: the lattice cell (from lo), as a row-index stride
       // multiple, and the weights of its two sides, computed once per block instead of per point
@@ -111,7 +111,7 @@ class GridEncoder {
   struct Level {
     int scale = 1;  // grid points per voxel of the level
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
-    std::vector<float> rows;
+    float* rows = nullptr;  // count·D floats of the thread's RowBuffer(level)
     std::vector<uint8_t> have;
     std::vector<Axis> axis[3];  // per axis and block-local coordinate
     size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
@@ -151,7 +151,7 @@ class GridEncoder {
   }
 
   const float* Row(Level& lv, size_t i) {
-    float* row = lv.rows.data() + i * D_;
+    float* row = lv.rows + i * D_;
     if (!lv.have[i]) [[unlikely]] {
       // The row's lattice point, from its index.
       const int dz = lv.dims.z(), dyz = lv.dims.y() * dz;
@@ -162,6 +162,11 @@ class GridEncoder {
     return row;
   }
 
+  static std::vector<float>& RowBuffer(int level) {
+    thread_local std::vector<float> buffers[kMaxLevels];
+    return buffers[level];
+  }
+
   const int L_, D_;
   FeatureReader& reader_;
   Level levels_[kMaxLevels];
@@ -170,50 +175,19 @@ class GridEncoder {
 // Meshes one block: the cells of its observed voxels at r cells per voxel edge. Grid points and
 // voxels are indexed densely within the block. Caller holds the shared lock.
 std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, const Int3& block,
-                                 const std::vector<Int3>& voxels, const VoxelSet& tile_voxels,
-                                 FeatureReader& reader) {
+                                 const std::vector<Int3>& voxels, FeatureReader& reader) {
   constexpr int B = kMeshBlockVoxels;
   const int n = B * r + 1;  // grid points per axis
   const Int3 voxel0 = block * B;
   const Int3 point0 = voxel0 * r;
   auto piece = std::make_shared<Piece>();
 
-  // Whether voxel voxel0 + v (v in [-1, B] per axis) counts as observed: 0 unknown, 1 no, 2 yes.
-  // A grid point on a voxel face belongs to every voxel that shares it; it counts as observed if
-  // any of them is, so that meshes of neighbouring observed voxels join up.
-  constexpr int V = B + 2;
-  std::vector<uint8_t> voxel_state(size_t(V) * V * V, 0);
-  auto state_of = [&](const Int3& v) -> uint8_t& {
-    return voxel_state[(size_t(v.x() + 1) * V + (v.y() + 1)) * V + (v.z() + 1)];
-  };
-  // Inside the block the tile's voxels are exactly `voxels`: marked here, so that only the ring
-  // around the block looks them up in the tile's set.
-  for (const Int3& g : voxels) state_of(g - voxel0) = 2;
-  auto voxel_observed = [&](const Int3& v) {
-    uint8_t& s = state_of(v);
-    if (s == 0) {
-      const Int3 g = voxel0 + v;
-      const bool inside = (v.array() >= 0).all() && (v.array() < B).all();
-      s = ((!inside && tile_voxels.count(g)) || (reader.ObservedBits(g) & LocalMap::kObserved)) ? 2
-                                                                                                : 1;
-    }
-    return s == 2;
-  };
-  auto point_observed = [&](const Int3& m) {
-    Int3 lo, hi;
-    for (int a = 0; a < 3; ++a) {
-      hi[a] = FloorDiv(m[a], r);
-      lo[a] = (m[a] % r == 0) ? hi[a] - 1 : hi[a];
-    }
-    for (int x = lo.x(); x <= hi.x(); ++x)
-      for (int y = lo.y(); y <= hi.y(); ++y)
-        for (int z = lo.z(); z <= hi.z(); ++z)
-          if (voxel_observed(Int3(x, y, z))) return true;
-    return false;
-  };
-
-  // Per grid point: -2 not seen yet, -1 not observed, else its index in `points`.
-  std::vector<int32_t> point_index(size_t(n) * n * n, -2);
+  // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
+  // corner), so it counts as observed: a point is observed when any voxel that shares it is.
+  // Per grid point: -1 not a corner of the block's cells, else its index in `points`. The table
+  // is the thread's, all -1 between blocks: the entries set here are reset before returning.
+  thread_local std::vector<int32_t> point_index;
+  if (point_index.size() != size_t(n) * n * n) point_index.assign(size_t(n) * n * n, -1);
   auto local = [n](const Int3& m) { return (size_t(m.x()) * n + m.y()) * n + m.z(); };
   std::vector<Int3> cells, points;
   cells.reserve(voxels.size() * r * r * r);
@@ -227,13 +201,9 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
           for (int corner = 0; corner < 8; ++corner) {
             const Int3 m = c + Int3(corner >> 2 & 1, corner >> 1 & 1, corner & 1);
             int32_t& idx = point_index[local(m)];
-            if (idx != -2) continue;
-            if (point_observed(m)) {
-              idx = int32_t(points.size());
-              points.push_back(m);
-            } else {
-              idx = -1;
-            }
+            if (idx >= 0) continue;
+            idx = int32_t(points.size());
+            points.push_back(m);
           }
         }
   }
@@ -251,8 +221,10 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
   samples.n = n;
   samples.index = point_index.data();
   samples.values = values.data();
+  samples.count = values.size();
   std::vector<GridEdge> edges;
   Mesh mesh = MarchingCubes(cells, samples, &edges);
+  for (const Int3& m : points) point_index[local(m)] = -1;
   piece->vertices = std::move(mesh.vertices);
   piece->faces = std::move(mesh.faces);
   const int last = B * r;
@@ -341,7 +313,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
     {
       std::shared_lock<std::shared_mutex> lock(src.mutex);
       FeatureReader reader(src.local_map, src.store);
-      piece = MeshBlock(src, *r, step, block, block_voxels, voxels.all, reader);
+      piece = MeshBlock(src, *r, step, block, block_voxels, reader);
     }
     piece->stamp = stamp;
     ++s.blocks_remeshed;
