@@ -1,5 +1,7 @@
 #include "rim/mesh/mesher.h"
 
+#include <immintrin.h>
+
 #include <algorithm>
 #include <cmath>
 #include <mutex>
@@ -84,7 +86,11 @@ class GridEncoder {
           const int m = point0[a] + t;
           const int base = FloorDiv(m, lv.scale);
           const float f = float(m - base * lv.scale) * inv;
-          lv.axis[a][size_t(t)] = {size_t(base - lv.lo[a]) * stride[a], 1.f - f, f};
+          Axis& e = lv.axis[a][size_t(t)];
+          e.offset = size_t(base - lv.lo[a]) * stride[a];
+          e.w[0] = 1.f - f;
+          e.w[1] = f;
+          for (int c = 0; c < 8; ++c) e.lanes[c] = e.w[c >> (2 - a) & 1];
         }
       }
       lv.corner_offset[0] = 0;
@@ -107,6 +113,8 @@ class GridEncoder {
   struct Axis {
     size_t offset;  // the lattice cell's index part along this axis
     float w[2];     // weights of the cell's lower and upper side: 1 − f and f
+    // w of each corner c = 4·cx + 2·cy + cz: w[cx] on the x axis, w[cy] on y, w[cz] on z.
+    alignas(32) float lanes[8];
   };
   struct Level {
     int scale = 1;  // grid points per voxel of the level
@@ -117,8 +125,34 @@ class GridEncoder {
     size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
   };
 
+  // EncodeAll<8> with the eight corner weights in one register: the same products in the same
+  // order ((tx·ty)·tz per lane), then the corners of nonzero weight in ascending order from a
+  // bit mask, so the sums are the same as the generic loop's.
   __attribute__((target("avx2"))) void EncodeAvx2(const std::vector<Int3>& points, float* out) {
-    EncodeAll<8>(points, out);
+    alignas(32) float w[8];
+    for (const Int3& m : points) {
+      for (int l = 0; l < L_; ++l, out += 8) {
+        Level& lv = levels_[l];
+        const Axis& ax = lv.axis[0][size_t(m.x())];
+        const Axis& ay = lv.axis[1][size_t(m.y())];
+        const Axis& az = lv.axis[2][size_t(m.z())];
+        const size_t cell = ax.offset + ay.offset + az.offset;
+        const __m256 wc =
+            _mm256_mul_ps(_mm256_mul_ps(_mm256_load_ps(ax.lanes), _mm256_load_ps(ay.lanes)),
+                          _mm256_load_ps(az.lanes));
+        _mm256_store_ps(w, wc);
+        unsigned mask =
+            unsigned(_mm256_movemask_ps(_mm256_cmp_ps(wc, _mm256_setzero_ps(), _CMP_NEQ_UQ)));
+        __m256 o = _mm256_setzero_ps();
+        while (mask != 0) {
+          const int c = __builtin_ctz(mask);
+          mask &= mask - 1;
+          const float* row = Row(lv, cell + lv.corner_offset[c]);
+          o = _mm256_add_ps(o, _mm256_mul_ps(_mm256_set1_ps(w[c]), _mm256_loadu_ps(row)));
+        }
+        _mm256_storeu_ps(out, o);
+      }
+    }
   }
 
   // For each level and corner c = 4·cx + 2·cy + cz in order, adds weight·row to the level's D
@@ -345,12 +379,17 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
     const Int3 lo = box.lo.cwiseMax(tile_lo);
     const Int3 hi = box.hi.cwiseMin(tile_hi);
     const LocalMap::Level& grid = map.level(0);
+    // Slots wrap per axis (LocalMap::Slot): a z run is contiguous in storage up to its wrap.
+    const Int3& dims = grid.dims;
     for (int x = lo.x(); x <= hi.x(); ++x)
-      for (int y = lo.y(); y <= hi.y(); ++y)
+      for (int y = lo.y(); y <= hi.y(); ++y) {
+        const int64_t row = map.Slot(0, Int3(x, y, lo.z())) - PosMod(lo.z(), dims.z());
+        int sz = PosMod(lo.z(), dims.z());
         for (int z = lo.z(); z <= hi.z(); ++z) {
-          const Int3 g(x, y, z);
-          if (grid.flags(map.Slot(0, g)) & LocalMap::kObserved) out.push_back(g);
+          if (grid.flags(row + sz) & LocalMap::kObserved) out.emplace_back(x, y, z);
+          if (++sz == dims.z()) sz = 0;
         }
+      }
   }
   return out;
 }
