@@ -26,8 +26,10 @@ struct MeshTileSource {
   std::shared_mutex& mutex;  // shared while reading the map, released between blocks
 };
 
-// Finest voxels per edge of a mesh block, the unit of re-meshing (0.8 m at a 0.1 m leaf).
-inline constexpr int kMeshBlockVoxels = 8;
+// Finest voxels per edge of a mesh block, the unit of re-meshing (1.6 m at a 0.1 m leaf). Larger
+// blocks evaluate fewer grid points twice (a block face is evaluated by both blocks); the box
+// changes nearly every block it covers in a frame, so finer blocks would not re-mesh less.
+inline constexpr int kMeshBlockVoxels = 16;
 
 // Finest-level voxels (minimum-corner lattice index) owned by sub-map `key` that were observed:
 // from the live local map inside the box, from the store elsewhere. Caller holds the shared lock.
