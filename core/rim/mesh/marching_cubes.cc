@@ -170,7 +170,8 @@ namespace {
 // The marching itself, shared by the sparse and the dense entry points so that both give the same
 // mesh (same vertices in the same order, same faces) from the same values. `Grid` supplies
 //   bool FirstVisit(const Int3& cell): false for a cell already meshed in this call;
-//   const Sample& At(const Int3& g): the value at grid point g, looked up at most once;
+//   bool Corners(const Int3& cell, float values[8], int* mask): the corner values and the case
+//     mask, false if a corner has no valid value;
 //   uint32_t& VertexSlot(const GridEdge& e): the vertex on edge e, kNoVertex until created.
 constexpr uint32_t kNoVertex = ~0u;
 
@@ -184,18 +185,7 @@ Mesh March(const std::vector<Int3>& cells, float step_m, const Eigen::Vector3f& 
     if (!grid.FirstVisit(cell)) continue;
     std::array<float, kNumCorners> values;
     int mask = 0;
-    bool complete = true;
-    for (int c = 0; c < kNumCorners; ++c) {
-      // Stop at the first missing corner: the cell is dropped anyway and lookups may be costly.
-      const Sample& s = grid.At(cell + CornerOffset(c));
-      if (!s.valid) {
-        complete = false;
-        break;
-      }
-      values[c] = s.value;
-      if (s.value < 0.0f) mask |= 1 << c;
-    }
-    if (!complete || mask == 0 || mask == 0xFF) continue;
+    if (!grid.Corners(cell, values.data(), &mask) || mask == 0 || mask == 0xFF) continue;
 
     for (int t = 0; t < table.num_triangles[mask]; ++t) {
       std::array<uint32_t, 3> face;
@@ -248,6 +238,16 @@ class SparseGrid {
     return it->second;
   }
   uint32_t& VertexSlot(const GridEdge& e) { return edges_.try_emplace(e, kNoVertex).first->second; }
+  bool Corners(const Int3& cell, float* values, int* mask) {
+    for (int c = 0; c < kNumCorners; ++c) {
+      // Stop at the first missing corner: the cell is dropped anyway and lookups may be costly.
+      const Sample& s = At(cell + CornerOffset(c));
+      if (!s.valid) return false;
+      values[c] = s.value;
+      if (s.value < 0.0f) *mask |= 1 << c;
+    }
+    return true;
+  }
 
  private:
   const GridSamples& samples_;
@@ -261,39 +261,46 @@ class SparseGrid {
 class DenseGrid {
  public:
   explicit DenseGrid(const DenseGridSamples& d)
-      : d_(d), done_(d.count, 0), edges_(3 * d.count, kNoVertex) {}
+      : d_(d), done_(d.count, 0), edges_(3 * d.count, kNoVertex) {
+    const size_t n = size_t(d.n);
+    for (int c = 0; c < kNumCorners; ++c)
+      corner_offset_[c] = (c & 1) * n * n + (c >> 1 & 1) * n + (c >> 2 & 1);
+  }
   bool FirstVisit(const Int3& cell) {
     const Int3 m = cell - d_.first;
     // A cell must have all its corners in the block: one that does not is never complete.
     if ((m.array() < 0).any() || (m.array() >= d_.n - 1).any()) return false;
-    const int32_t i = Index(m);
-    if (i < 0) return true;  // a missing corner: At() drops the cell
+    base_ = (size_t(m.x()) * d_.n + m.y()) * d_.n + m.z();
+    const int32_t i = d_.index[base_];
+    if (i < 0) return true;  // a missing corner: Corners() drops the cell
     uint8_t& done = done_[size_t(i)];
     if (done) return false;
     done = 1;
     return true;
   }
-  const Sample& At(const Int3& g) {
-    const int32_t i = Index(g - d_.first);
-    if (i < 0) {
-      sample_ = Sample{};
-    } else {
+  // The cell of the last FirstVisit() that returned true.
+  bool Corners(const Int3& /*cell*/, float* values, int* mask) {
+    for (int c = 0; c < kNumCorners; ++c) {
+      const int32_t i = d_.index[base_ + corner_offset_[c]];
+      if (i < 0) return false;
       const float v = d_.values[size_t(i)];
-      sample_ = {v, std::isfinite(v)};
+      if (!std::isfinite(v)) return false;
+      values[c] = v;
+      if (v < 0.0f) *mask |= 1 << c;
     }
-    return sample_;
+    return true;
   }
   // Only called for an edge of a complete cell, whose lower point has an index.
   uint32_t& VertexSlot(const GridEdge& e) {
-    return edges_[3 * size_t(Index(e.lower - d_.first)) + size_t(e.axis)];
+    const Int3 m = e.lower - d_.first;
+    const int32_t i = d_.index[(size_t(m.x()) * d_.n + m.y()) * d_.n + m.z()];
+    return edges_[3 * size_t(i) + size_t(e.axis)];
   }
 
  private:
-  int32_t Index(const Int3& m) const {
-    return d_.index[(size_t(m.x()) * d_.n + m.y()) * d_.n + m.z()];
-  }
   const DenseGridSamples& d_;
-  Sample sample_;
+  size_t corner_offset_[kNumCorners];
+  size_t base_ = 0;
   std::vector<uint8_t> done_;
   std::vector<uint32_t> edges_;
 };

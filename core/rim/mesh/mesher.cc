@@ -229,17 +229,19 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
     const Int3 c0 = (g - voxel0) * r;
     for (int i = 0; i < r; ++i)
       for (int j = 0; j < r; ++j)
-        for (int k = 0; k < r; ++k) {
-          const Int3 c = c0 + Int3(i, j, k);
-          cells.push_back(point0 + c);
-          for (int corner = 0; corner < 8; ++corner) {
-            const Int3 m = c + Int3(corner >> 2 & 1, corner >> 1 & 1, corner & 1);
-            int32_t& idx = point_index[local(m)];
-            if (idx >= 0) continue;
-            idx = int32_t(points.size());
-            points.push_back(m);
-          }
+        for (int k = 0; k < r; ++k) cells.push_back(point0 + c0 + Int3(i, j, k));
+    // The voxel's (r + 1)³ grid points: the corners of its cells. (Their order in `points` does
+    // not matter: a point's value does not depend on its batch.)
+    for (int i = 0; i <= r; ++i)
+      for (int j = 0; j <= r; ++j) {
+        const size_t row = local(c0 + Int3(i, j, 0));
+        for (int k = 0; k <= r; ++k) {
+          int32_t& idx = point_index[row + size_t(k)];
+          if (idx >= 0) continue;
+          idx = int32_t(points.size());
+          points.push_back(c0 + Int3(i, j, k));
         }
+      }
   }
   if (points.empty()) return piece;
 
