@@ -52,6 +52,13 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
   return out;
 }
 
+// Buffers reused from block to block by one meshing call: nothing of a block's dense size is
+// allocated or cleared per block.
+struct BlockScratch {
+  std::vector<float> rows[kMaxLevels];  // GridEncoder's lattice rows, written before read
+  std::vector<int32_t> point_index;     // MeshBlock's grid point table, all -1 between blocks
+};
+
 // The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
 // lies at m / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
 // and the remainder over a power of two times r. Each lattice row is fetched once per block (on
@@ -59,7 +66,8 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
 // so blocks and tiles that share a point compute the same bits for it.
 class GridEncoder {
  public:
-  GridEncoder(const MapGeometry& geo, int r, const Int3& point0, int n, FeatureReader& reader)
+  GridEncoder(const MapGeometry& geo, int r, const Int3& point0, int n, FeatureReader& reader,
+              BlockScratch& scratch)
       : L_(geo.levels()), D_(geo.feature_dim()), reader_(reader) {
     for (int l = 0; l < L_; ++l) {
       Level& lv = levels_[l];
@@ -69,9 +77,9 @@ class GridEncoder {
           FloorDiv(point0 + Int3::Constant(n - 1), Int3::Constant(lv.scale)) + Int3::Ones();
       lv.dims = hi - lv.lo + Int3::Ones();
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
-      // Rows are written before they are read (`have`): the buffer is the thread's, reused
-      // from block to block without clearing.
-      std::vector<float>& rows = RowBuffer(l);
+      // Rows are written before they are read (`have`): the buffer is reused from block to
+      // block without clearing.
+      std::vector<float>& rows = scratch.rows[l];
       if (rows.size() < count * D_) rows.resize(count * D_);
       lv.rows = rows.data();
       lv.have.assign(count, 0);
@@ -119,7 +127,7 @@ class GridEncoder {
   struct Level {
     int scale = 1;  // grid points per voxel of the level
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
-    float* rows = nullptr;  // count·D floats of the thread's RowBuffer(level)
+    float* rows = nullptr;  // count·D floats of BlockScratch::rows[level]
     std::vector<uint8_t> have;
     std::vector<Axis> axis[3];  // per axis and block-local coordinate
     size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
@@ -196,11 +204,6 @@ class GridEncoder {
     return row;
   }
 
-  static std::vector<float>& RowBuffer(int level) {
-    thread_local std::vector<float> buffers[kMaxLevels];
-    return buffers[level];
-  }
-
   const int L_, D_;
   FeatureReader& reader_;
   Level levels_[kMaxLevels];
@@ -209,7 +212,8 @@ class GridEncoder {
 // Meshes one block: the cells of its observed voxels at r cells per voxel edge. Grid points and
 // voxels are indexed densely within the block. Caller holds the shared lock.
 std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, const Int3& block,
-                                 const std::vector<Int3>& voxels, FeatureReader& reader) {
+                                 const std::vector<Int3>& voxels, FeatureReader& reader,
+                                 BlockScratch& scratch) {
   constexpr int B = kMeshBlockVoxels;
   const int n = B * r + 1;  // grid points per axis
   const Int3 voxel0 = block * B;
@@ -219,8 +223,8 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
   // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
   // corner), so it counts as observed: a point is observed when any voxel that shares it is.
   // Per grid point: -1 not a corner of the block's cells, else its index in `points`. The table
-  // is the thread's, all -1 between blocks: the entries set here are reset before returning.
-  thread_local std::vector<int32_t> point_index;
+  // is the call's, all -1 between blocks: the entries set here are reset before returning.
+  std::vector<int32_t>& point_index = scratch.point_index;
   if (point_index.size() != size_t(n) * n * n) point_index.assign(size_t(n) * n * n, -1);
   auto local = [n](const Int3& m) { return (size_t(m.x()) * n + m.y()) * n + m.z(); };
   std::vector<Int3> cells, points;
@@ -247,7 +251,7 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
 
   const int F = src.geometry.encoding_dim();
   std::vector<float> features(points.size() * F), values(points.size());
-  GridEncoder encoder(src.geometry, r, point0, n, reader);
+  GridEncoder encoder(src.geometry, r, point0, n, reader, scratch);
   encoder.EncodeAll(points, features.data());
   src.decoder.Forward(features.data(), int(points.size()), values.data());
 
@@ -330,6 +334,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
 
   std::vector<std::shared_ptr<const Piece>> pieces;
   pieces.reserve(voxels.blocks.size());
+  BlockScratch scratch;
   absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal> next;
   MeshUpdateStats s;
   s.blocks = int(voxels.blocks.size());
@@ -349,7 +354,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
     {
       std::shared_lock<std::shared_mutex> lock(src.mutex);
       FeatureReader reader(src.local_map, src.store);
-      piece = MeshBlock(src, *r, step, block, block_voxels, reader);
+      piece = MeshBlock(src, *r, step, block, block_voxels, reader, scratch);
     }
     piece->stamp = stamp;
     ++s.blocks_remeshed;
