@@ -6,11 +6,13 @@
 // the last one, so a tile is pushed at most once per interval, at its newest version. The queue
 // holds at most one message per tile: a slow dashboard gets the newest version of each tile when
 // it catches up, and memory stays bounded by the tile count.
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <memory>
 #include <mutex>
 #include <thread>
+#include <vector>
 
 #include "absl/container/flat_hash_map.h"
 #include "rim/base/thread_priority.h"
@@ -64,7 +66,13 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
   // the watch ended.
   bool PushRound(uint64_t* listed_version) {
     uint64_t newest = *listed_version;
-    for (TileInfo tile : session_->mapper().ListTiles(*listed_version)) {
+    // Oldest change first: a tile the box has left keeps the version of its last change and its
+    // wait counts from then, while a tile the box still covers is meshed at the newest version
+    // whenever its turn comes. Key order made the tiles the box left wait behind the live ones.
+    std::vector<TileInfo> tiles = session_->mapper().ListTiles(*listed_version);
+    std::stable_sort(tiles.begin(), tiles.end(),
+                     [](const TileInfo& a, const TileInfo& b) { return a.version < b.version; });
+    for (TileInfo tile : tiles) {
       {
         std::lock_guard<std::mutex> lock(mu_);
         if (stop_) return false;
