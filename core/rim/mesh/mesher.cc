@@ -229,6 +229,7 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
   auto local = [n](const Int3& m) { return (size_t(m.x()) * n + m.y()) * n + m.z(); };
   std::vector<Int3> cells, points;
   cells.reserve(voxels.size() * r * r * r);
+  points.reserve(voxels.size() * (r + 1) * (r + 1) * (r + 1) / 2);
   for (const Int3& g : voxels) {
     const Int3 c0 = (g - voxel0) * r;
     for (int i = 0; i < r; ++i)
@@ -281,14 +282,16 @@ std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, 
 // Joins block pieces into one indexed mesh, welding the vertices that lie on a shared grid edge.
 Mesh Weld(const std::vector<std::shared_ptr<const Piece>>& pieces) {
   Mesh out;
-  size_t nv = 0, nf = 0;
+  size_t nv = 0, nf = 0, ns = 0;
   for (const auto& p : pieces) {
     nv += p->vertices.size();
     nf += p->faces.size();
+    ns += p->shared.size();
   }
   out.vertices.reserve(nv);
   out.faces.reserve(nf);
   absl::flat_hash_map<GridEdge, uint32_t, GridEdgeHash> welded;
+  welded.reserve(ns);  // an upper bound: each shared edge is there once or twice
   std::vector<uint32_t> remap;
   for (const auto& p : pieces) {
     constexpr uint32_t kUnset = ~0u;
