@@ -174,7 +174,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   const double start = Now();
   std::optional<IntBox> old_box;  // the box before this frame's slide (its leaving slabs change)
   {
-    std::unique_lock<std::shared_mutex> lock(mu_);
+    std::unique_lock lock(mu_);
     const double t0 = Now();
     if (local_map_->placed()) old_box = local_map_->LatticeBox(0);
     const bool moved = SlideTo(scan.T_world_sensor.translation());
@@ -190,14 +190,14 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   double loss_sum = 0;
   for (int i = 0; i < n_iter; ++i) {
     // One exclusive section per iteration: readers wait at most one iteration (§3.5).
-    std::unique_lock<std::shared_mutex> lock(mu_);
+    std::unique_lock lock(mu_);
     auto loss = trainer_->Iterate(*buffer_, outside_->rays, train_decoder, &it);
     if (!loss.ok()) return loss.status();
     loss_sum += *loss;
     map_version_.fetch_add(1);
   }
   {
-    std::unique_lock<std::shared_mutex> lock(mu_);
+    std::unique_lock lock(mu_);
     ++frames_;
     BumpVersions(train_decoder && n_iter > 0, old_box ? &*old_box : nullptr);
     // What this frame changed, for the mesh block cache: the box's rows and flags, and the slabs
@@ -308,7 +308,7 @@ void Mapper::EvalNeural(const float* xyz, size_t n, float* sdf, float* grad,
 absl::Status Mapper::QueryNeural(const float* xyz, size_t n, bool want_gradient,
                                  QueryResult* out) const {
   RIM_RETURN_IF_ERROR(CheckQueryPoints(xyz, n));
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   // Under the lock, or a slide in between could leave slabs on their way to the store, in
   // neither the local map nor the store, and read as unobserved zeros.
   saver_->Flush();
@@ -340,7 +340,7 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
     // so that training waits for at most one chunk of a large batch, not the whole of it.
     distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
                      want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin]);
-    std::shared_lock<std::shared_mutex> lock(mu_);
+    std::shared_lock lock(mu_);
     saver_->Flush();  // under the lock, as in QueryNeural
     FeatureReader reader(*local_map_, *store_);
     for (size_t i = begin; i < begin + m; ++i) {
@@ -454,14 +454,14 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
 
 bool Mapper::DistanceFieldBehind() const {
   std::lock_guard<std::mutex> refresh(refresh_mu_);
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   return distance_frames_ != frames_;
 }
 
 double Mapper::RefreshDistanceField() {
   const double start = Now();
   std::lock_guard<std::mutex> refresh(refresh_mu_);
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   saver_->Flush();
   distance_frames_ = frames_;
   std::vector<Int3> keys;
@@ -529,7 +529,7 @@ absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) c
   {
     // Blocks are kept for the tiles that the box can still change: within a block and a coarse
     // voxel of it.
-    std::shared_lock<std::shared_mutex> lock(mu_);
+    std::shared_lock lock(mu_);
     if (local_map_->placed()) {
       const Int3 cells = geometry_->cells(0);
       const int margin = kMeshBlockVoxels + (1 << (geometry_->levels() - 1)) + 1;
@@ -544,13 +544,13 @@ absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) c
 }
 
 std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   saver_->Flush();  // under the lock, as in QuerySdf
   return rim::ObservedVoxels(MeshTileSource{*geometry_, *local_map_, *store_, *decoder_, mu_}, key);
 }
 
 MapperStats Mapper::Stats() const {
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   MapperStats s;
   s.frames = frames_;
   s.map_version = map_version_.load();

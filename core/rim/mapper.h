@@ -16,6 +16,7 @@
 #include "absl/status/statusor.h"
 #include "rim/base/mesh.h"
 #include "rim/base/scan.h"
+#include "rim/base/shared_mutex.h"
 #include "rim/base/types.h"
 #include "rim/config/config.h"
 
@@ -210,8 +211,9 @@ class Mapper {
   struct OutsideRaysHolder;
   std::unique_ptr<OutsideRaysHolder> outside_;
 
-  // Writers (the training thread) hold it exclusively per step; readers share it.
-  mutable std::shared_mutex mu_;
+  // Writers (the training thread) hold it exclusively per step; readers share it. A waiting writer
+  // goes before new readers (base/shared_mutex.h): no method takes it shared twice.
+  mutable WriterFirstSharedMutex mu_;
   // One Save() at a time, whatever the directory: overlapping saves picked the same checkpoint
   // folder, or pruned each other's (mapper_persistence.cc).
   mutable std::mutex save_mu_;

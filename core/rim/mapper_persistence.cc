@@ -227,7 +227,7 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
   // Before mu_, as RefreshDistanceField takes them: the refresh state is saved as it stands.
   std::lock_guard<std::mutex> refresh_lock(refresh_mu_);
-  std::shared_lock<std::shared_mutex> lock(mu_);
+  std::shared_lock lock(mu_);
   // Under the lock: the trainer may have slid the local map since any earlier flush, and slabs
   // still on their way to the store would be in neither the local map nor the checkpoint. The
   // saver thread takes only its own and the store's locks, so waiting here cannot deadlock.

@@ -41,7 +41,7 @@ struct TileVoxels {
 TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
   TileVoxels out;
   absl::flat_hash_map<Int3, std::vector<Int3>, Int3Hash, Int3Equal> by_block;
-  std::shared_lock<std::shared_mutex> lock(src.mutex);
+  std::shared_lock lock(src.mutex);
   for (const Int3& g : ObservedVoxels(src, key)) {
     by_block[FloorDiv(g, Int3::Constant(kMeshBlockVoxels))].push_back(g);
   }
@@ -355,7 +355,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
     }
     std::shared_ptr<Piece> piece;
     {
-      std::shared_lock<std::shared_mutex> lock(src.mutex);
+      std::shared_lock lock(src.mutex);
       FeatureReader reader(src.local_map, src.store);
       piece = MeshBlock(src, *r, step, block, block_voxels, reader, scratch);
     }

@@ -11,6 +11,7 @@
 #include "absl/container/flat_hash_map.h"
 #include "absl/status/statusor.h"
 #include "rim/base/mesh.h"
+#include "rim/base/shared_mutex.h"
 #include "rim/map/local_map.h"
 #include "rim/map/submap_store.h"
 #include "rim/mesh/marching_cubes.h"
@@ -23,7 +24,7 @@ struct MeshTileSource {
   const LocalMap& local_map;
   const SubmapStore& store;
   const Decoder& decoder;
-  std::shared_mutex& mutex;  // shared while reading the map, released between blocks
+  WriterFirstSharedMutex& mutex;  // shared while reading the map, released between blocks
 };
 
 // Finest voxels per edge of a mesh block, the unit of re-meshing (1.6 m at a 0.1 m leaf). Larger
