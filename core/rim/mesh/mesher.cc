@@ -1,6 +1,9 @@
 #include "rim/mesh/mesher.h"
 
+#if defined(__x86_64__)
 #include <immintrin.h>
+#define RIM_MESH_AVX2 1
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -110,9 +113,12 @@ class GridEncoder {
 
   // Features (L·D floats per point) at the block-local grid points.
   void EncodeAll(const std::vector<Int3>& points, float* out) {
+#ifdef RIM_MESH_AVX2
     static const bool avx2 = __builtin_cpu_supports("avx2");
+    if (D_ == 8 && avx2) return EncodeAvx2(points, out);
+#endif
     if (D_ == 8)
-      avx2 ? EncodeAvx2(points, out) : EncodeAll<8>(points, out);
+      EncodeAll<8>(points, out);
     else
       EncodeAll<0>(points, out);
   }
@@ -133,6 +139,7 @@ class GridEncoder {
     size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
   };
 
+#ifdef RIM_MESH_AVX2
   // EncodeAll<8> with the eight corner weights in one register: the same products in the same
   // order ((tx·ty)·tz per lane), then the corners of nonzero weight in ascending order from a
   // bit mask, so the sums are the same as the generic loop's.
@@ -162,6 +169,7 @@ class GridEncoder {
       }
     }
   }
+#endif
 
   // For each level and corner c = 4·cx + 2·cy + cz in order, adds weight·row to the level's D
   // outputs (starting from zero), the weight being (tx·ty)·tz; corners of weight zero (the point
