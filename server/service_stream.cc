@@ -1,17 +1,20 @@
 // StreamScans: a bidirectional reactor. Per scan it validates, then Session::Submit()s; a full
 // queue stops reading until Session::OnSpace fires (backpressure through gRPC flow control). Acks
 // go out one write at a time from a queue: ACCEPTED (or REJECTED) from the reading side, and
-// INTEGRATED from the trainer thread. The stream finishes once the client has half-closed and every
-// accepted scan's INTEGRATED ack is written. A scan for a robot the caller's token may not act on
+// INTEGRATED from the trainer thread. The stream finishes once the client has half-closed, every
+// accepted scan's INTEGRATED ack is written, and the distance field of each session it fed covers
+// those scans. A scan for a robot the caller's token may not act on
 // is REJECTED with PERMISSION_DENIED, like any bad scan, and the stream goes on.
 //
 // Threading: all state is guarded by Shared::mu. Callbacks from the trainer thread hold only a
 // shared_ptr<Shared> and reach the reactor through Shared::reactor, which OnDone clears under the
 // mutex before deleting the reactor, so a late callback finds nullptr and does nothing.
+#include <algorithm>
 #include <deque>
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "server/scan_convert.h"
@@ -44,9 +47,26 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
 
   void OnReadDone(bool ok) override {
     if (!ok) {
-      std::lock_guard<std::mutex> lock(shared_->mu);
-      half_closed_ = true;
-      MaybeFinishLocked();
+      // The client is done sending. The stream ends once every session it fed has integrated
+      // its scans and brought the distance field up to them (Session::Settle), so that a client
+      // that saw the stream end can query every frame it sent.
+      std::vector<std::shared_ptr<Session>> fed;
+      {
+        std::lock_guard<std::mutex> lock(shared_->mu);
+        half_closed_ = true;
+        fed.swap(fed_);
+        settling_ += fed.size();
+        MaybeFinishLocked();
+      }
+      std::weak_ptr<Shared> weak = shared_;
+      for (const std::shared_ptr<Session>& session : fed) {
+        session->Settle([weak] {
+          std::shared_ptr<Shared> shared = weak.lock();
+          if (!shared) return;
+          std::lock_guard<std::mutex> lock(shared->mu);
+          if (shared->reactor != nullptr) shared->reactor->OnSettledLocked();
+        });
+      }
       return;
     }
     HandleScan();
@@ -95,6 +115,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
       if (shared->reactor != nullptr) shared->reactor->OnIntegratedLocked(ack);
     });
     if (s.ok()) {
+      if (std::find(fed_.begin(), fed_.end(), p.session) == fed_.end()) fed_.push_back(p.session);
       rim::v1::ScanAck ack = MakeAck(*p.session, p.sequence, rim::v1::ScanAck::ACCEPTED);
       pending_.reset();
       EnqueueLocked(std::move(ack));
@@ -222,6 +243,11 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     MaybeFinishLocked();
   }
 
+  void OnSettledLocked() {
+    --settling_;
+    MaybeFinishLocked();
+  }
+
  private:
   void RejectLocked(uint64_t sequence, const absl::Status& status) {
     rim::v1::ScanAck ack;
@@ -260,7 +286,8 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
       Finish(grpc::Status(grpc::StatusCode::CANCELLED, "scan stream cancelled"));
       return;
     }
-    if (half_closed_ && !pending_ && awaiting_integration_ == 0 && queue_.empty() && !writing_) {
+    if (half_closed_ && !pending_ && awaiting_integration_ == 0 && settling_ == 0 &&
+        queue_.empty() && !writing_) {
       finished_ = true;
       Finish(end_status_);
     }
@@ -283,6 +310,8 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
   bool finished_ = false;
   grpc::Status end_status_;  // OK, or why the server ended the stream itself
   uint64_t awaiting_integration_ = 0;
+  std::vector<std::shared_ptr<Session>> fed_;  // sessions that accepted a scan of this stream
+  size_t settling_ = 0;                        // of those, the ones not settled yet
 };
 
 }  // namespace

@@ -165,6 +165,27 @@ void Session::Drain() {
   cv_.wait(lock, [this] { return queue_.empty() && !busy_; });
 }
 
+void Session::Settle(std::function<void()> done) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (!closing_) {
+      settle_waiters_.push_back(std::move(done));
+      cv_.notify_all();
+      return;
+    }
+  }
+  done();
+}
+
+double Session::RefreshDistanceFieldIfBehind() {
+  std::optional<ComputeScheduler::Lease> slot;
+  if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
+  if (!mapper_->DistanceFieldBehind()) return 0;
+  last_refresh_s_ = mapper_->RefreshDistanceField();
+  last_refresh_end_s_ = SteadySeconds();
+  return last_refresh_s_;
+}
+
 void Session::Close() {
   {
     std::lock_guard<std::mutex> lock(mu_);
@@ -248,7 +269,42 @@ void Session::Run() {
   std::unique_lock<std::mutex> lock(mu_);
   while (true) {
     // Drain everything accepted before stopping: an accepted scan is never dropped.
-    cv_.wait(lock, [this] { return closing_ || !queue_.empty(); });
+    const auto ready = [this] { return closing_ || !queue_.empty() || !settle_waiters_.empty(); };
+    if (refresh_owed_) {
+      // The last frame's refresh was skipped for the budget: make it up when the budget allows,
+      // unless a frame (which refreshes in its turn) comes first.
+      const double wait_s =
+          std::max(0.0, last_refresh_end_s_ + 4 * last_refresh_s_ - SteadySeconds());
+      const auto deadline = std::chrono::steady_clock::now() +
+                            std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                std::chrono::duration<double>(wait_s));
+      if (!cv_.wait_until(lock, deadline, ready)) {
+        refresh_owed_ = false;
+        busy_ = true;
+        lock.unlock();
+        RefreshDistanceFieldIfBehind();
+        lock.lock();
+        busy_ = false;
+        cv_.notify_all();
+        continue;
+      }
+    } else {
+      cv_.wait(lock, ready);
+    }
+    if (queue_.empty() && !settle_waiters_.empty()) {
+      // Everything queued is integrated: bring the field up to it, then answer.
+      std::vector<std::function<void()>> settled;
+      settled.swap(settle_waiters_);
+      busy_ = true;
+      lock.unlock();
+      refresh_owed_ = false;
+      RefreshDistanceFieldIfBehind();
+      for (auto& fn : settled) fn();
+      lock.lock();
+      busy_ = false;
+      cv_.notify_all();
+      continue;
+    }
     if (queue_.empty()) break;
     Item item = std::move(queue_.front());
     queue_.pop_front();
@@ -280,11 +336,15 @@ void Session::Run() {
         std::lock_guard<std::mutex> relock(mu_);
         idle = queue_.empty();
       }
-      if (status.ok() && idle && now - last_refresh_end_s_ >= 4 * last_refresh_s_ &&
-          mapper_->DistanceFieldBehind()) {
-        last_refresh_s_ = mapper_->RefreshDistanceField();
-        last_refresh_end_s_ = SteadySeconds();
-        timing.distance_s += last_refresh_s_;
+      refresh_owed_ = false;
+      if (status.ok() && idle && mapper_->DistanceFieldBehind()) {
+        if (now - last_refresh_end_s_ >= 4 * last_refresh_s_) {
+          last_refresh_s_ = mapper_->RefreshDistanceField();
+          last_refresh_end_s_ = SteadySeconds();
+          timing.distance_s += last_refresh_s_;
+        } else {
+          refresh_owed_ = true;
+        }
       }
     }
 
@@ -337,8 +397,11 @@ void Session::Run() {
   }
   std::vector<std::function<void()>> waiters;
   waiters.swap(space_waiters_);
+  std::vector<std::function<void()>> settled;
+  settled.swap(settle_waiters_);
   lock.unlock();
   for (auto& fn : waiters) fn();  // closing: let waiting handlers find out
+  for (auto& fn : settled) fn();
 }
 
 }  // namespace rim::server

@@ -105,6 +105,11 @@ class Session {
   uint64_t WaitForIntegrated(uint64_t seen, std::chrono::milliseconds timeout, bool* closed);
   // Waits until every queued scan is integrated.
   void Drain();
+  // Runs `done` on the trainer thread once every scan queued so far is integrated and the
+  // distance field covers them all (refreshed then if it is behind, whatever the refresh budget);
+  // at once (on the caller's thread) when the session is closing. StreamScans calls it when a
+  // client half-closes, so that a stream's end means every one of its frames can be queried.
+  void Settle(std::function<void()> done);
   // Stops accepting, drains, stops the trainer. Idempotent; callable from several threads at once,
   // each returning once the trainer has stopped.
   void Close();
@@ -156,6 +161,9 @@ class Session {
   Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
           const SessionOptions& options, std::unique_ptr<WriteAheadLog> wal);
   void Run();
+  // Trainer thread: refreshes the distance field if it is behind the map; returns the seconds
+  // taken (0 when it was current).
+  double RefreshDistanceFieldIfBehind();
 
   struct Item {
     uint64_t sequence;
@@ -175,6 +183,7 @@ class Session {
   bool busy_ = false;  // the trainer is integrating a popped item
   bool closing_ = false;
   std::vector<std::function<void()>> space_waiters_;
+  std::vector<std::function<void()>> settle_waiters_;
   SessionStats stats_;
   // (map version after the frame, steady seconds when it was integrated), oldest first.
   std::deque<std::pair<uint64_t, double>> integrated_at_;
@@ -187,6 +196,9 @@ class Session {
   // Trainer thread only: when the distance field's last refresh ended and how long it took
   // (steady clock seconds), to keep refreshes between frames to a share of the session's time.
   double last_refresh_end_s_ = -1e9, last_refresh_s_ = 0;
+  // Trainer thread only: a refresh was skipped for the budget after the last frame; the trainer
+  // makes it up once the budget allows, if no frame comes first.
+  bool refresh_owed_ = false;
   TileCache tiles_;
   // Held while joining trainer_, so that concurrent Close() calls neither race on the thread
   // object nor join it twice.
