@@ -6,8 +6,13 @@
 #include <sys/types.h>
 #include <unistd.h>
 
+#if defined(__x86_64__)
+#include <nmmintrin.h>
+#endif
+
 #include <array>
 #include <atomic>
+#include <cstring>
 #include <filesystem>
 #include <utility>
 
@@ -153,13 +158,40 @@ absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
 
 }  // namespace
 
-uint32_t Crc32c(const void* data, size_t size, uint32_t crc) {
+#if defined(__x86_64__)
+// The same CRC with SSE 4.2's crc32 instruction (Castagnoli polynomial, reflected, as the table),
+// 8 bytes at a time: about 20x the table's speed. Write-ahead log records carry a whole scan
+// (1.8 MB for a 64-beam frame) and checkpoints hundreds of MB; with the table alone a checkpoint
+// held the trainer for about a second.
+__attribute__((target("sse4.2"))) uint32_t Crc32cSse42(const unsigned char* p, size_t n,
+                                                       uint32_t c) {
+  uint64_t c64 = c;
+  for (; n >= 8; n -= 8, p += 8) {
+    uint64_t v;
+    std::memcpy(&v, p, sizeof(v));
+    c64 = _mm_crc32_u64(c64, v);
+  }
+  c = uint32_t(c64);
+  for (; n > 0; --n, ++p) c = _mm_crc32_u8(c, *p);
+  return c;
+}
+#endif
+
+uint32_t Crc32cPortable(const void* data, size_t size, uint32_t crc) {
   const auto& table = Crc32cTable();
   const auto* p = static_cast<const unsigned char*>(data);
   // Pre- and post-inversion make the result chainable across calls.
   uint32_t c = ~crc;
   for (size_t i = 0; i < size; ++i) c = table[(c ^ p[i]) & 0xFFu] ^ (c >> 8);
   return ~c;
+}
+
+uint32_t Crc32c(const void* data, size_t size, uint32_t crc) {
+#if defined(__x86_64__)
+  static const bool sse42 = __builtin_cpu_supports("sse4.2");
+  if (sse42) return ~Crc32cSse42(static_cast<const unsigned char*>(data), size, ~crc);
+#endif
+  return Crc32cPortable(data, size, crc);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -27,6 +27,8 @@ namespace rim {
 // CRC-32C (Castagnoli, reflected polynomial 0x82F63B78). `crc` is the value returned by a previous
 // call, so a checksum can be built incrementally: Crc32c(b, nb, Crc32c(a, na)) == Crc32c(a+b).
 uint32_t Crc32c(const void* data, size_t size, uint32_t crc = 0);
+// The same from a byte table, without SSE 4.2 (what Crc32c uses on CPUs without it); for tests.
+uint32_t Crc32cPortable(const void* data, size_t size, uint32_t crc = 0);
 
 // Little-endian serialisation into a growing byte buffer.
 class ByteWriter {
