@@ -221,6 +221,40 @@ void FeatureReader::Prefetch(const Vec3d& p_W) const {
   }
 }
 
+// Encode's cell for D = 8: the sums and the Jacobian's three columns are kept as separate
+// 8-float rows, which the compiler keeps in vector registers (the Jacobian's interleaved
+// d-major layout made it add one float at a time), and written out once. Each element gets the
+// same products added in the same corner order as the general loop, so the bits are the same.
+void FeatureReader::EncodeCell8(const float f[3], float inv_h, const float* const* corner, int l,
+                                const Int3& base, float* out, float* jac) {
+  float acc[8] = {}, jx[8] = {}, jy[8] = {}, jz[8] = {};
+  for (int c = 0; c < 8; ++c) {
+    const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+    const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1], tz = cz ? f[2] : 1.f - f[2];
+    const float* feat = corner ? corner[c] : Get(l, base + Int3(cx, cy, cz));
+    float row[8];
+    std::copy_n(feat, 8, row);
+    const float wc = tx * ty * tz;
+    for (int d = 0; d < 8; ++d) acc[d] += wc * row[d];
+    if (!jac) continue;
+    const float sx = (cx ? 1.f : -1.f) * inv_h, sy = (cy ? 1.f : -1.f) * inv_h,
+                sz = (cz ? 1.f : -1.f) * inv_h;
+    const float dwx = sx * ty * tz, dwy = tx * sy * tz, dwz = tx * ty * sz;
+    for (int d = 0; d < 8; ++d) {
+      jx[d] += dwx * row[d];
+      jy[d] += dwy * row[d];
+      jz[d] += dwz * row[d];
+    }
+  }
+  std::copy_n(acc, 8, out);
+  if (!jac) return;
+  for (int d = 0; d < 8; ++d) {
+    jac[d * 3 + 0] = jx[d];
+    jac[d * 3 + 1] = jy[d];
+    jac[d * 3 + 2] = jz[d];
+  }
+}
+
 void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
   const MapGeometry& geo = map_.geometry();
   const int L = geo.levels(), D = geo.feature_dim();
@@ -248,6 +282,10 @@ void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
       int64_t slots[8];
       map_.CellSlots(l, base, slots);
       for (int c = 0; c < 8; ++c) corner[c] = map_.level(l).features(slots[c]);
+    }
+    if (D == 8) {  // every preset
+      EncodeCell8(f, float(inv_h), inside ? corner : nullptr, l, base, out, jac);
+      continue;
     }
     for (int c = 0; c < 8; ++c) {
       const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;

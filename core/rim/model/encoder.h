@@ -88,6 +88,10 @@ class FeatureReader {
     int index;
   };
   Slot Fetch(int level, const Int3& g);
+  // One level's cell of Encode for D = 8: `f` the point's fractions in the cell, `corner` the 8
+  // rows when the cell is in the live box (else null: read through Get).
+  void EncodeCell8(const float f[3], float inv_h, const float* const* corner, int l,
+                   const Int3& base, float* out, float* jac);
 
   const LocalMap& map_;
   const SubmapStore& store_;
