@@ -154,11 +154,14 @@ TEST(SessionTest, SettleAnswersOnceEveryScanIsIntegratedAndTheDistanceFieldCover
   MapperConfig config = SmallConfig();
   config.query.refresh_frames = 10000;
   config.sampler.rays_per_iteration = 512;
+  config.train.min_iterations = config.train.iterations;  // whatever the queue depth
   auto session = Session::Create("robot_s", config, options);
   ASSERT_TRUE(session.ok());
   constexpr int kScans = 14;
+  std::vector<PosedScan> scans;
+  for (int i = 0; i < kScans; ++i) scans.push_back(StillScan(i >= 8, i));
   for (int i = 0; i < kScans; ++i)
-    ASSERT_TRUE((*session)->Submit(uint64_t(i), StillScan(i >= 8, i), nullptr).ok());
+    ASSERT_TRUE((*session)->Submit(uint64_t(i), scans[size_t(i)], nullptr).ok());
   std::promise<std::pair<int64_t, bool>> settled;
   (*session)->Settle([&] {
     settled.set_value({(*session)->mapper().frames(), (*session)->mapper().DistanceFieldBehind()});
