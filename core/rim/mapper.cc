@@ -498,7 +498,16 @@ double Mapper::RefreshDistanceField() {
     return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
   });
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
-  for (const Int3& key : keys) distance_->Replace(key, regions, ExtractSurfels(key, regions));
+  // Extraction runs each sub-map's voxels over the threads in turn; the normal fits and tree
+  // builds of Replace are one thread's work per sub-map, so those run side by side (sub-maps
+  // share nothing there).
+  std::vector<std::vector<Surfel>> fresh(keys.size());
+  for (size_t k = 0; k < keys.size(); ++k) fresh[k] = ExtractSurfels(keys[k], regions);
+  eval::ParallelFor(int64_t(keys.size()), 1, std::max(config_.train.threads, 1),
+                    [&](int64_t begin, int64_t end) {
+                      for (int64_t k = begin; k < end; ++k)
+                        distance_->Replace(keys[size_t(k)], regions, std::move(fresh[size_t(k)]));
+                    });
   if (box) distance_box_ = std::move(box);
   return Now() - start;
 }
