@@ -30,6 +30,7 @@ const Histogram::BucketBoundaries kStageBuckets{0.0005, 0.001, 0.003, 0.01, 0.03
                                                 0.1,    0.3,   1,     3,    10};
 const Histogram::BucketBoundaries kQueryBuckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025,
                                                 0.05,   0.1,   0.25,   0.5,   1,    2.5};
+const Histogram::BucketBoundaries kRefreshBuckets{0.01, 0.03, 0.1, 0.2, 0.3, 0.5, 1, 3, 10};
 const Histogram::BucketBoundaries kMeshBuckets{0.005, 0.01, 0.03, 0.1, 0.3, 1, 3, 10};
 const Histogram::BucketBoundaries kPushDelayBuckets{0.1, 0.25, 0.5, 1, 1.5, 2, 3, 5, 10, 30};
 const Histogram::BucketBoundaries kCheckpointBuckets{0.01, 0.03, 0.1, 0.3, 1, 3, 10, 30, 100};
@@ -94,12 +95,18 @@ struct ServerMetrics::Families {
                        .Register(r)),
         frame(prometheus::BuildHistogram()
                   .Name("rim_frame_integration_seconds")
-                  .Help("Time to integrate one frame: slide, preprocess and train")
+                  .Help("Time to integrate one frame: slide, preprocess, train, and the distance "
+                        "field's refresh when the frame had one")
                   .Register(r)),
         stage(prometheus::BuildHistogram()
                   .Name("rim_training_stage_seconds")
                   .Help("Time one frame spent in a stage, summed over its iterations")
                   .Register(r)),
+        refresh(prometheus::BuildHistogram()
+                    .Name("rim_distance_refresh_seconds")
+                    .Help("Time of one refresh of a session's distance field (surfel extraction, "
+                          "normal fits, search trees)")
+                    .Register(r)),
         query_points(prometheus::BuildCounter()
                          .Name("rim_query_points_total")
                          .Help("Points answered by QuerySdf and StreamQuerySdf")
@@ -152,6 +159,7 @@ struct ServerMetrics::Families {
   prometheus::Family<prometheus::Counter>& integrated;
   prometheus::Family<Histogram>& frame;
   prometheus::Family<Histogram>& stage;
+  prometheus::Family<Histogram>& refresh;
   prometheus::Family<prometheus::Counter>& query_points;
   prometheus::Family<Histogram>& query_latency;
   prometheus::Family<prometheus::Counter>& tiles;
@@ -340,15 +348,23 @@ void ServerMetrics::ScanRejected(const std::string& robot, absl::StatusCode code
 void ServerMetrics::FrameIntegrated(const std::string& robot, const StageTimings& t) {
   families_->integrated.Add({{"session", robot}}).Increment();
   families_->frame.Add({{"session", robot}}, kFrameBuckets).Observe(t.total_s);
-  const double known =
-      t.slide_s + t.preprocess_s + t.sample_s + t.encode_s + t.forward_s + t.backward_s + t.step_s;
-  const std::pair<const char*, double> stages[] = {
-      {"slide", t.slide_s},     {"preprocess", t.preprocess_s},
-      {"sample", t.sample_s},   {"encode", t.encode_s},
-      {"forward", t.forward_s}, {"backward", t.backward_s},
-      {"step", t.step_s},       {"other", std::max(0.0, t.total_s - known)}};
+  const double known = t.slide_s + t.preprocess_s + t.sample_s + t.encode_s + t.forward_s +
+                       t.backward_s + t.step_s + t.distance_s;
+  const std::pair<const char*, double> stages[] = {{"slide", t.slide_s},
+                                                   {"preprocess", t.preprocess_s},
+                                                   {"sample", t.sample_s},
+                                                   {"encode", t.encode_s},
+                                                   {"forward", t.forward_s},
+                                                   {"backward", t.backward_s},
+                                                   {"step", t.step_s},
+                                                   {"distance", t.distance_s},
+                                                   {"other", std::max(0.0, t.total_s - known)}};
   for (const auto& [stage, seconds] : stages)
     families_->stage.Add({{"session", robot}, {"stage", stage}}, kStageBuckets).Observe(seconds);
+}
+
+void ServerMetrics::DistanceRefreshed(const std::string& robot, double seconds) {
+  families_->refresh.Add({{"session", robot}}, kRefreshBuckets).Observe(seconds);
 }
 
 void ServerMetrics::FrameFailed(const std::string& robot) {

@@ -178,11 +178,12 @@ void Session::Settle(std::function<void()> done) {
 }
 
 double Session::RefreshDistanceFieldIfBehind() {
+  if (!mapper_->DistanceFieldBehind()) return 0;
   std::optional<ComputeScheduler::Lease> slot;
   if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
-  if (!mapper_->DistanceFieldBehind()) return 0;
   last_refresh_s_ = mapper_->RefreshDistanceField();
   last_refresh_end_s_ = SteadySeconds();
+  if (options_.events) options_.events->DistanceRefreshed(robot_id_, last_refresh_s_);
   return last_refresh_s_;
 }
 
@@ -326,6 +327,7 @@ void Session::Run() {
       if (timing.distance_s > 0) {  // IntegrateScan's own refresh, every query.refresh_frames
         last_refresh_end_s_ = now;
         last_refresh_s_ = timing.distance_s;
+        if (options_.events) options_.events->DistanceRefreshed(robot_id_, timing.distance_s);
       }
       // Nothing waiting: bring the distance field up to this frame before it is acknowledged,
       // so that a planner that waited for the ack reads distances from it; but at most a fifth
@@ -341,7 +343,10 @@ void Session::Run() {
         if (now - last_refresh_end_s_ >= 4 * last_refresh_s_) {
           last_refresh_s_ = mapper_->RefreshDistanceField();
           last_refresh_end_s_ = SteadySeconds();
+          // Part of the frame: its ack waits for it.
           timing.distance_s += last_refresh_s_;
+          timing.total_s += last_refresh_s_;
+          if (options_.events) options_.events->DistanceRefreshed(robot_id_, last_refresh_s_);
         } else {
           refresh_owed_ = true;
         }

@@ -20,6 +20,10 @@ class SessionEvents {
   // A frame was trained (`timing` holds its per-stage times), or training it failed.
   virtual void FrameIntegrated(const std::string& robot, const StageTimings& timing) {}
   virtual void FrameFailed(const std::string& robot) {}
+  // The session's distance field was refreshed: after a frame (then also in that frame's
+  // timing.distance_s), or between frames (a refresh made up after a budget skip, or at a
+  // stream's end).
+  virtual void DistanceRefreshed(const std::string& robot, double seconds) {}
   virtual void WalAppended(const std::string& robot, double seconds) {}
   virtual void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) {}
   // A tile was meshed and Draco-encoded (cache misses only); `blocks_remeshed` of its mesh blocks

@@ -48,9 +48,13 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
   m.ScanRejected("r1", absl::StatusCode::kNotFound);
   StageTimings t;
   t.total_s = 0.5;
-  t.forward_s = 0.1;
-  t.backward_s = 0.2;
+  // Binary fractions, so that "other" comes out exact.
+  t.forward_s = 0.125;
+  t.backward_s = 0.25;
+  t.distance_s = 0.0625;
   m.FrameIntegrated("r1", t);
+  m.DistanceRefreshed("r1", 0.0625);
+  m.DistanceRefreshed("r1", 0.25);
   m.QueryAnswered("r2", 1000, 0.002);
   m.TileEncoded("r1", 4096, 0.05, 7);
   m.TilePushed("r1", 1.2);
@@ -68,10 +72,15 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
   EXPECT_THAT(text, HasSubstr("rim_scans_integrated_total{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_frame_integration_seconds_sum{session=\"r1\"} 0.5"));
   EXPECT_THAT(text,
-              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"backward\"} 0.2"));
-  // The time no stage accounts for is reported as "other": 0.5 - 0.1 - 0.2.
+              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"backward\"} 0.25"));
+  EXPECT_THAT(
+      text, HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"distance\"} 0.0625"));
+  // The time no stage accounts for is reported as "other": 0.5 - 0.125 - 0.25 - 0.0625.
   EXPECT_THAT(text,
-              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"other\"} 0.2"));
+              HasSubstr("rim_training_stage_seconds_sum{session=\"r1\",stage=\"other\"} 0.0625"));
+  // Every refresh, after a frame or between frames.
+  EXPECT_THAT(text, HasSubstr("rim_distance_refresh_seconds_count{session=\"r1\"} 2"));
+  EXPECT_THAT(text, HasSubstr("rim_distance_refresh_seconds_sum{session=\"r1\"} 0.3125"));
   EXPECT_THAT(text, HasSubstr("rim_query_points_total{session=\"r2\"} 1000"));
   EXPECT_THAT(text, HasSubstr("rim_mesh_tile_bytes_total{session=\"r1\"} 4096"));
   EXPECT_THAT(text, HasSubstr("rim_mesh_blocks_remeshed_total{session=\"r1\"} 7"));
