@@ -230,7 +230,8 @@ void FeatureReader::EncodeCell8(const float f[3], float inv_h, const float* cons
   float acc[8] = {}, jx[8] = {}, jy[8] = {}, jz[8] = {};
   for (int c = 0; c < 8; ++c) {
     const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-    const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1], tz = cz ? f[2] : 1.f - f[2];
+    const float tx = cx ? f[0] : 1.f - f[0], ty = cy ? f[1] : 1.f - f[1],
+                tz = cz ? f[2] : 1.f - f[2];
     const float* feat = corner ? corner[c] : Get(l, base + Int3(cx, cy, cz));
     float row[8];
     std::copy_n(feat, 8, row);
