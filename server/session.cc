@@ -177,14 +177,18 @@ void Session::Settle(std::function<void()> done) {
   done();
 }
 
-double Session::RefreshDistanceFieldIfBehind() {
-  if (!mapper_->DistanceFieldBehind()) return 0;
-  std::optional<ComputeScheduler::Lease> slot;
-  if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
+double Session::RefreshDistanceFieldNow() {
   last_refresh_s_ = mapper_->RefreshDistanceField();
   last_refresh_end_s_ = SteadySeconds();
   if (options_.events) options_.events->DistanceRefreshed(robot_id_, last_refresh_s_);
   return last_refresh_s_;
+}
+
+double Session::RefreshDistanceFieldIfBehind() {
+  if (!mapper_->DistanceFieldBehind()) return 0;
+  std::optional<ComputeScheduler::Lease> slot;
+  if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
+  return RefreshDistanceFieldNow();
 }
 
 void Session::Close() {
@@ -341,12 +345,10 @@ void Session::Run() {
       refresh_owed_ = false;
       if (status.ok() && idle && mapper_->DistanceFieldBehind()) {
         if (now - last_refresh_end_s_ >= 4 * last_refresh_s_) {
-          last_refresh_s_ = mapper_->RefreshDistanceField();
-          last_refresh_end_s_ = SteadySeconds();
-          // Part of the frame: its ack waits for it.
-          timing.distance_s += last_refresh_s_;
-          timing.total_s += last_refresh_s_;
-          if (options_.events) options_.events->DistanceRefreshed(robot_id_, last_refresh_s_);
+          // Part of the frame (its ack waits for it), under the frame's training slot.
+          const double seconds = RefreshDistanceFieldNow();
+          timing.distance_s += seconds;
+          timing.total_s += seconds;
         } else {
           refresh_owed_ = true;
         }

@@ -164,6 +164,8 @@ class Session {
   // Trainer thread: refreshes the distance field if it is behind the map; returns the seconds
   // taken (0 when it was current).
   double RefreshDistanceFieldIfBehind();
+  // Trainer thread, holding a training slot: refreshes it now, records when and how long.
+  double RefreshDistanceFieldNow();
 
   struct Item {
     uint64_t sequence;
