@@ -4,6 +4,7 @@
 #include "rim/map/submap_store.h"
 
 #include <stdlib.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <array>
@@ -245,6 +246,56 @@ TEST_F(SubmapStoreTest, SaveToLoadFromRoundTrip) {
 
   SubmapStore missing(geometry_, config_.submap);
   EXPECT_FALSE(missing.LoadFrom(dir.path() + "/does_not_exist").ok());
+}
+
+// A save links the file of a sub-map unchanged since the store last saved or loaded it (one
+// inode, two names) and writes the others: a checkpoint costs what changed, not the whole map.
+TEST_F(SubmapStoreTest, SaveLinksTheFilesOfUnchangedSubmapsAndWritesTheRest) {
+  TempDir dir("submap_store_links");
+  SubmapStore store(geometry_, config_.submap);
+  Reference ref;
+  Fill(&store, &ref);
+  auto file = [&](const std::string& sub, const Int3& key) {
+    return dir.path() + "/" + sub + "/submap_" + SubmapKeyName(key) + ".subm";
+  };
+  auto inode = [](const std::string& path) {
+    struct stat st {};
+    EXPECT_EQ(::lstat(path.c_str(), &st), 0) << path;
+    return st.st_ino;
+  };
+  ASSERT_TRUE(store.SaveTo(dir.path() + "/a").ok());
+  ASSERT_TRUE(store.SaveTo(dir.path() + "/b").ok());
+  const std::vector<Int3> keys = store.Keys();
+  ASSERT_EQ(keys.size(), 4u);
+  for (const Int3& key : keys) EXPECT_EQ(inode(file("a", key)), inode(file("b", key)));
+
+  // New voxels in one sub-map, a new version for another, a file rewritten in place for a third:
+  // those three are written, the fourth is linked.
+  const Int3 touched(0, 0, 0), bumped(-1, 0, 0), tampered(2, -3, 1), kept(0, 1, -1);
+  std::mt19937_64 rng(11);
+  WriteRandomVoxels(&store, &ref, &rng, 0, geometry_.cells(0) / 2, 2, 5, geometry_.feature_dim());
+  store.SetVersion(bumped, 77);
+  {
+    std::ofstream out(file("b", tampered), std::ios::binary | std::ios::trunc);  // same inode
+    out << "not the sub-map that was saved";
+  }
+  ASSERT_TRUE(store.SaveTo(dir.path() + "/c").ok());
+  EXPECT_NE(inode(file("c", touched)), inode(file("b", touched)));
+  EXPECT_NE(inode(file("c", bumped)), inode(file("b", bumped)));
+  EXPECT_NE(inode(file("c", tampered)), inode(file("b", tampered)));
+  EXPECT_EQ(inode(file("c", kept)), inode(file("b", kept)));
+
+  // What the save left loads to the store as it is; and a save after that load links the files
+  // it loaded.
+  SubmapStore loaded(geometry_, config_.submap);
+  absl::Status s = loaded.LoadFrom(dir.path() + "/c");
+  ASSERT_TRUE(s.ok()) << s;
+  EXPECT_EQ(KeySet(loaded), KeySet(store));
+  for (const Int3& key : keys)
+    EXPECT_EQ(*loaded.SerializeSubmap(key), *store.SerializeSubmap(key)) << SubmapKeyName(key);
+  ExpectMatches(loaded, ref, geometry_.feature_dim());
+  ASSERT_TRUE(loaded.SaveTo(dir.path() + "/d").ok());
+  for (const Int3& key : keys) EXPECT_EQ(inode(file("d", key)), inode(file("c", key)));
 }
 
 // ReadBlock hands out the store's block without a copy; every voxel of it matches Read, and a

@@ -356,6 +356,34 @@ absl::Status WriteFileAtomic(const std::string& path, std::string_view kind,
   return FsyncDir(DirName(path));
 }
 
+absl::StatusOr<FileIdentity> IdentifyFile(const std::string& path) {
+  struct stat st;
+  if (::lstat(path.c_str(), &st) != 0)
+    return absl::ErrnoToStatus(errno, absl::StrCat("stat ", path));
+  if (!S_ISREG(st.st_mode))
+    return absl::FailedPreconditionError(absl::StrCat(path, " is not a regular file"));
+  FileIdentity id;
+  id.device = uint64_t(st.st_dev);
+  id.inode = uint64_t(st.st_ino);
+  id.size = uint64_t(st.st_size);
+  id.mtime_ns = int64_t(st.st_mtim.tv_sec) * 1000000000 + int64_t(st.st_mtim.tv_nsec);
+  return id;
+}
+
+absl::Status LinkFileAtomic(const std::string& from, const std::string& to) {
+  static std::atomic<uint64_t> counter{0};
+  const std::string tmp =
+      absl::StrCat(to, ".link.", static_cast<int64_t>(::getpid()), ".", counter.fetch_add(1));
+  if (::link(from.c_str(), tmp.c_str()) != 0)
+    return absl::ErrnoToStatus(errno, absl::StrCat("link ", from, " to ", tmp));
+  if (::rename(tmp.c_str(), to.c_str()) != 0) {
+    const absl::Status s = absl::ErrnoToStatus(errno, absl::StrCat("rename ", tmp, " to ", to));
+    ::unlink(tmp.c_str());
+    return s;
+  }
+  return FsyncDir(DirName(to));
+}
+
 absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string_view kind) {
   RIM_RETURN_IF_ERROR(CheckKind(kind));
   RIM_ASSIGN_OR_RETURN(std::string file, ReadWholeFile(path));

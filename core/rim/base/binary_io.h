@@ -120,6 +120,25 @@ inline constexpr uint32_t kFileFormatVersion = 1;
 absl::Status WriteFileAtomic(const std::string& path, std::string_view kind,
                              std::string_view payload);
 
+// What identifies a file that rim wrote: device, inode, size and modification time. A later
+// look that finds the same identity finds the same file, not rewritten since (a rewrite makes a
+// new inode, as WriteFileAtomic does, or moves the modification time).
+struct FileIdentity {
+  uint64_t device = 0, inode = 0, size = 0;
+  int64_t mtime_ns = 0;
+  bool operator==(const FileIdentity& o) const {
+    return device == o.device && inode == o.inode && size == o.size && mtime_ns == o.mtime_ns;
+  }
+};
+// The identity of the regular file at `path` (not following a link); NotFound when it is missing,
+// FailedPrecondition when it is not a regular file.
+absl::StatusOr<FileIdentity> IdentifyFile(const std::string& path);
+
+// Gives the file at `from` a second name `to` (a hard link), with WriteFileAtomic's guarantees:
+// linked under a temporary name, renamed over `to`, and the directory fsynced. The file itself
+// must already be durable (a file that WriteFileAtomic wrote is).
+absl::Status LinkFileAtomic(const std::string& from, const std::string& to);
+
 // Reads a container file and verifies magic, version, size, checksum and kind, returning the
 // payload. NotFound for a missing file; DataLoss for truncated, corrupt or wrong-kind files. Every
 // message names the path and the problem.

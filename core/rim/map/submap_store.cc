@@ -42,6 +42,7 @@ SubmapStore::Submap* SubmapStore::FindLocked(const Int3& key) const {
     auto bytes = ReadFileChecked(SpillPath(key), kSubmapFileKind);
     if (!bytes.ok()) {
       last_error_ = bytes.status();
+      s.generation = ++generation_clock_;  // what it reads as (nothing) is not what was saved
       return &s;  // stays on disk; reads see no data and the error is reported
     }
     Int3 parsed_key;
@@ -49,11 +50,13 @@ SubmapStore::Submap* SubmapStore::FindLocked(const Int3& key) const {
     absl::Status st = ParseSubmap(*bytes, SpillPath(key), &parsed_key, &parsed);
     if (!st.ok() || parsed_key != key) {
       last_error_ = st.ok() ? absl::DataLossError(SpillPath(key) + ": holds another sub-map") : st;
+      s.generation = ++generation_clock_;
       return &s;
     }
     parsed.version = s.version;  // the version may have moved while it was on disk
     parsed.state = SubmapState::kFrozen;
     parsed.last_access = s.last_access;
+    parsed.generation = s.generation;  // the same content, back from its spill file
     host_bytes_ += parsed.bytes;
     s = std::move(parsed);
     unlink(SpillPath(key).c_str());
@@ -84,6 +87,7 @@ void SubmapStore::Write(const SlabBatch& batch) {
         // the new voxels must stay visible rather than go into a sub-map nobody can read.
         cached_submap->state = SubmapState::kFrozen;
       }
+      cached_submap->generation = ++generation_clock_;
       cached_key = key;
     }
     const Int3 local = g - key.cwiseProduct(cells);

@@ -16,6 +16,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "rim/base/binary_io.h"
 #include "rim/map/local_map.h"
 #include "rim/map/map_geometry.h"
 
@@ -114,7 +115,11 @@ class SubmapStore {
   SubmapStoreStats Stats() const;
   std::vector<Int3> Keys() const;
 
-  // Whole-store persistence: one checksummed file per sub-map under `dir`.
+  // Whole-store persistence: one checksummed file per sub-map under `dir`. A sub-map unchanged
+  // since a file that this store saved or loaded (same content and version, and the file still
+  // the one it was: IdentifyFile) gets that file hard-linked in rather than written again, so
+  // that a checkpoint's cost follows what changed since the last one, not the size of the map.
+  // Where the link cannot be made (another file system) the sub-map is written.
   absl::Status SaveTo(const std::string& dir) const;
   absl::Status LoadFrom(const std::string& dir);
   // One sub-map as bytes and back (also used for spilling). Deserialize replaces the sub-map.
@@ -132,6 +137,14 @@ class SubmapStore {
     SubmapState state = SubmapState::kActive;
     uint64_t last_access = 0;
     int64_t bytes = 0;
+    // Stamp of its last content change, from generation_clock_: equal stamps, equal content.
+    uint64_t generation = 0;
+  };
+  // A file that holds a sub-map as it was at `generation` with `version`.
+  struct SavedFile {
+    uint64_t generation = 0, version = 0;
+    std::string path;
+    FileIdentity identity;
   };
 
   // Caller holds mu_. Reloads a spilled sub-map; returns null if the key is unknown.
@@ -139,6 +152,12 @@ class SubmapStore {
   absl::Status ParseSubmap(const std::string& bytes, const std::string& context, Int3* key,
                            Submap* out) const;
   void SerializeLocked(const Int3& key, const Submap& s, std::string* out) const;
+  // DeserializeSubmap, saying which sub-map it replaced and the stamp and version it now has.
+  absl::Status Install(const std::string& bytes, const std::string& context, Int3* key,
+                       SavedFile* stamp);
+  // SaveTo for one sub-map: link the file saved_ names when it still holds the sub-map as it is,
+  // else write it. Records the file in saved_.
+  absl::Status SaveOne(const Int3& key, const std::string& path) const;
   std::string SpillPath(const Int3& key) const;
   int64_t BlockBytes(int level) const;
 
@@ -149,6 +168,9 @@ class SubmapStore {
   mutable uint64_t access_clock_ = 0;
   mutable int64_t host_bytes_ = 0;
   mutable absl::Status last_error_;
+  mutable uint64_t generation_clock_ = 0;
+  // Per sub-map, the last file that SaveTo wrote or linked, or LoadFrom read.
+  mutable std::unordered_map<Int3, SavedFile, Int3Hash, Int3Equal> saved_;
 };
 
 // The file kind of a serialised sub-map (spilled, or saved in a checkpoint).

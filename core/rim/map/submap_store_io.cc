@@ -131,28 +131,81 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
 
 absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std::string& context) {
   Int3 key;
+  SavedFile stamp;
+  return Install(bytes, context, &key, &stamp);
+}
+
+absl::Status SubmapStore::Install(const std::string& bytes, const std::string& context, Int3* key,
+                                  SavedFile* stamp) {
   Submap s;
-  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, &key, &s));
+  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, key, &s));
   std::lock_guard<std::mutex> lock(mu_);
-  auto it = submaps_.find(key);
+  auto it = submaps_.find(*key);
   if (it != submaps_.end()) {
     host_bytes_ -= it->second.bytes;
     s.state =
         it->second.state == SubmapState::kActive ? SubmapState::kActive : SubmapState::kFrozen;
   }
   s.last_access = ++access_clock_;
+  s.generation = ++generation_clock_;
   host_bytes_ += s.bytes;
-  submaps_[key] = std::move(s);
+  stamp->generation = s.generation;
+  stamp->version = s.version;
+  submaps_[*key] = std::move(s);
+  saved_.erase(*key);
+  return absl::OkStatus();
+}
+
+absl::Status SubmapStore::SaveOne(const Int3& key, const std::string& path) const {
+  SavedFile prior;
+  bool unchanged = false;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = submaps_.find(key);
+    auto saved = saved_.find(key);
+    if (it != submaps_.end() && saved != saved_.end() &&
+        saved->second.generation == it->second.generation &&
+        saved->second.version == it->second.version) {
+      prior = saved->second;
+      unchanged = true;
+    }
+  }
+  if (unchanged && prior.path != path) {
+    // The file must still be the one written: a file replaced or rewritten since is not trusted.
+    absl::StatusOr<FileIdentity> now = IdentifyFile(prior.path);
+    if (now.ok() && *now == prior.identity && LinkFileAtomic(prior.path, path).ok()) {
+      prior.path = path;
+      std::lock_guard<std::mutex> lock(mu_);
+      saved_[key] = std::move(prior);
+      return absl::OkStatus();
+    }
+  }
+  SavedFile written;
+  std::string bytes;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    const Submap* s = FindLocked(key);
+    if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
+    if (s->state == SubmapState::kOnDisk)
+      return absl::DataLossError(absl::StrCat("sub-map ", SubmapKeyName(key),
+                                              " could not be reloaded from ", SpillPath(key), ": ",
+                                              last_error_.message()));
+    SerializeLocked(key, *s, &bytes);
+    written.generation = s->generation;
+    written.version = s->version;
+  }
+  RIM_RETURN_IF_ERROR(WriteFileAtomic(path, kSubmapFileKind, bytes));
+  RIM_ASSIGN_OR_RETURN(written.identity, IdentifyFile(path));
+  written.path = path;
+  std::lock_guard<std::mutex> lock(mu_);
+  saved_[key] = std::move(written);
   return absl::OkStatus();
 }
 
 absl::Status SubmapStore::SaveTo(const std::string& dir) const {
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
-  for (const Int3& key : Keys()) {
-    RIM_ASSIGN_OR_RETURN(std::string bytes, SerializeSubmap(key));
-    RIM_RETURN_IF_ERROR(WriteFileAtomic(absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm"),
-                                        kSubmapFileKind, bytes));
-  }
+  for (const Int3& key : Keys())
+    RIM_RETURN_IF_ERROR(SaveOne(key, absl::StrCat(dir, "/submap_", SubmapKeyName(key), ".subm")));
   // Files of sub-maps that no longer exist would come back on load: remove them.
   std::vector<Int3> keys = Keys();
   if (DIR* d = opendir(dir.c_str())) {
@@ -180,8 +233,19 @@ absl::Status SubmapStore::LoadFrom(const std::string& dir) {
   closedir(d);
   std::sort(files.begin(), files.end());
   for (const std::string& f : files) {
+    // The identity before the read: a file changed while it is read is not the one loaded.
+    absl::StatusOr<FileIdentity> identity = IdentifyFile(f);
     RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(f, kSubmapFileKind));
-    RIM_RETURN_IF_ERROR(DeserializeSubmap(bytes, f));
+    Int3 key;
+    SavedFile stamp;
+    RIM_RETURN_IF_ERROR(Install(bytes, f, &key, &stamp));
+    if (!identity.ok()) continue;
+    // Loading this file again gives the sub-map as it now is, so the next save may link the file
+    // rather than write it again.
+    stamp.path = f;
+    stamp.identity = *identity;
+    std::lock_guard<std::mutex> lock(mu_);
+    saved_[key] = std::move(stamp);
   }
   return absl::OkStatus();
 }
