@@ -3,7 +3,8 @@
 // own config, restored through SessionManager::Load. Each entry of the input (fuzz_util.h) is one
 // file; op % 5 picks which:
 //   0 CURRENT   1 <session>/config.rimf   2 ckpt-000000/config.rimf   3 ckpt-000000/state.rimf
-//   4 ckpt-000000/submaps/submap_<n>.subm
+//   4 ckpt-000000/submaps/submap_<n>.subm (kind SUB8, 8-bit rows, with op bit 6 set; else SUBM,
+//     the float32 files of older checkpoints)
 // Entries are wrapped in the checksummed container (binary_io.h) with the right kind tag, so that
 // the fuzzer reaches the parsers behind the checksum; with op bit 7 set the bytes are written as
 // they are, for the container checks themselves. A session that loads is then used: queried,
@@ -56,7 +57,9 @@ void WriteSessionFiles(const std::string& dir, std::string_view input) {
         path = ckpt + "/state.rimf", kind = "STAT";
         break;
       default:
-        path = ckpt + "/submaps/submap_" + std::to_string(submaps++) + ".subm", kind = "SUBM";
+        // Both sub-map formats: 8-bit rows (what rim writes) and float32 (older files).
+        path = ckpt + "/submaps/submap_" + std::to_string(submaps++) + ".subm",
+        kind = (e.op & 0x40) ? "SUB8" : "SUBM";
         break;
     }
     rim::fuzz::WriteFileOrDie(path,

@@ -221,7 +221,8 @@ void SessionSeeds() {
   const std::string current = dir + "/" + *rim::ReadFileChecked(dir + "/CURRENT", "CURR");
   add(2, current + "/config.rimf", "CONF");
   add(3, current + "/state.rimf", "STAT");
-  for (const auto& e : fs::directory_iterator(current + "/submaps")) add(4, e.path(), "SUBM");
+  for (const auto& e : fs::directory_iterator(current + "/submaps"))
+    add(0x40, e.path(), "SUB8");  // 64 % 5 = 4: a sub-map, 8-bit
   Seed("checkpoint", "saved", ckpt);
   // Only the session's config and log: a session that crashed before its first checkpoint.
   std::string fresh;

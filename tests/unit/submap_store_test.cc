@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -23,6 +24,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
+#include "rim/base/binary_io.h"
 #include "rim/base/row8.h"
 #include "rim/config/config.h"
 #include "rim/map/map_geometry.h"
@@ -718,6 +720,110 @@ TEST_F(SubmapStoreTest, FailedReloadOnRevisitKeepsTheSpilledData) {
   // the file is readable again, its data comes back.
   ASSERT_TRUE(store.UpdateActivity(Int3(2, -3, 1)).ok());
   ExpectMatches(store, ref, geometry_.feature_dim());
+}
+
+// The float32 payload that checkpoints held before the 8-bit format, made from an 8-bit one by
+// widening each block's rows.
+std::string WidenedPayload(const std::string& row8, int levels, int D, size_t b3) {
+  ByteReader r(row8, "row8");
+  ByteWriter w;
+  int32_t v32;
+  uint64_t v64;
+  auto copy_i32 = [&] {
+    EXPECT_TRUE(r.I32(&v32).ok());
+    w.I32(v32);
+  };
+  for (int i = 0; i < 3; ++i) copy_i32();  // key
+  EXPECT_TRUE(r.U64(&v64).ok());
+  w.U64(v64);                              // version
+  for (int i = 0; i < 3; ++i) copy_i32();  // levels, dim, block
+  for (int l = 0; l < levels; ++l) {
+    uint64_t n = 0;
+    EXPECT_TRUE(r.U64(&n).ok());
+    w.U64(n);
+    for (uint64_t b = 0; b < n; ++b) {
+      for (int i = 0; i < 3; ++i) copy_i32();  // block key
+      std::vector<int8_t> rows;
+      std::vector<uint8_t> observed;
+      EXPECT_TRUE(r.PodVector(&rows).ok());
+      EXPECT_TRUE(r.PodVector(&observed).ok());
+      EXPECT_EQ(rows.size(), b3 * Row8Bytes(D));
+      std::vector<float> wide(b3 * size_t(D));
+      DecodeRows8(rows.data(), b3, D, wide.data());
+      w.FloatArray(wide.data(), wide.size());
+      w.PodVector(observed);
+    }
+  }
+  EXPECT_TRUE(r.ExpectEnd().ok());
+  return w.Release();
+}
+
+// Sub-maps are written as 8-bit rows (a quarter of the float32 bytes); float32 files of older
+// checkpoints and spills load to the same store, and an 8-bit row that would decode to -inf
+// (-128 at the top exponent) loads as finite values.
+TEST_F(SubmapStoreTest, WritesEightBitRowsAndLoadsOlderFloatFiles) {
+  TempDir dir("submap_store_formats");
+  SubmapStore store(geometry_, config_.submap);
+  Reference ref;
+  Fill(&store, &ref);
+  const int D = geometry_.feature_dim();
+  const size_t b3 =
+      size_t(config_.submap.block_size) * config_.submap.block_size * config_.submap.block_size;
+  ASSERT_TRUE(fs::create_directories(dir.path() + "/old"));
+  size_t row8_bytes = 0, float_bytes = 0;
+  for (const Int3& key : store.Keys()) {
+    const std::string row8 = *store.SerializeSubmap(key);
+    const std::string wide = WidenedPayload(row8, geometry_.levels(), D, b3);
+    row8_bytes += row8.size();
+    float_bytes += wide.size();
+    ASSERT_TRUE(WriteFileAtomic(dir.path() + "/old/submap_" + SubmapKeyName(key) + ".subm",
+                                kSubmapFloatFileKind, wide)
+                    .ok());
+  }
+  EXPECT_LT(row8_bytes * 3, float_bytes);
+  SubmapStore old(geometry_, config_.submap);
+  absl::Status s = old.LoadFrom(dir.path() + "/old");
+  ASSERT_TRUE(s.ok()) << s;
+  // The same values (unwritten rows of zeros may carry another exponent).
+  for (const Int3& key : store.Keys())
+    EXPECT_TRUE(WidenedPayload(*old.SerializeSubmap(key), geometry_.levels(), D, b3) ==
+                WidenedPayload(*store.SerializeSubmap(key), geometry_.levels(), D, b3))
+        << SubmapKeyName(key);
+  ExpectMatches(old, ref, D);
+
+  // What SaveTo writes is of the 8-bit kind.
+  ASSERT_TRUE(store.SaveTo(dir.path() + "/new").ok());
+  for (const Int3& key : store.Keys()) {
+    const std::string path = dir.path() + "/new/submap_" + SubmapKeyName(key) + ".subm";
+    EXPECT_TRUE(ReadFileChecked(path, kSubmapFileKind).ok()) << path;
+  }
+
+  // A row of -128s with the top exponent.
+  SubmapStore one(geometry_, config_.submap);
+  std::mt19937_64 rng(2);
+  Reference one_ref;
+  WriteRandomVoxels(&one, &one_ref, &rng, 0, Int3(4, 4, 4), 0, 1, D);
+  std::string bytes = *one.SerializeSubmap(Int3(0, 0, 0));
+  // The first block's rows follow the header (key, version, levels, dim, block: 32 bytes), the
+  // level's block count, the block key and the rows' length.
+  const size_t rows_at = 32 + 8 + 12 + 8;
+  for (size_t row = 0; row < b3; ++row) {
+    bytes[rows_at + row * Row8Bytes(D)] = char(127);
+    for (int k = 0; k < D; ++k) bytes[rows_at + row * Row8Bytes(D) + 1 + k] = char(-128);
+  }
+  SubmapStore odd(geometry_, config_.submap);
+  s = odd.DeserializeSubmap(bytes, "odd rows");
+  ASSERT_TRUE(s.ok()) << s;
+  std::vector<float> f(D);
+  uint8_t observed = 0;
+  ASSERT_TRUE(odd.Read(0, Int3(0, 0, 0), f.data(), &observed));
+  for (float v : f) EXPECT_TRUE(std::isfinite(v)) << v;
+  EXPECT_EQ(*odd.SerializeSubmap(Int3(0, 0, 0)), [&] {
+    // Deserialising what it now holds changes nothing.
+    SubmapStore again(geometry_, config_.submap);
+    EXPECT_TRUE(again.DeserializeSubmap(*odd.SerializeSubmap(Int3(0, 0, 0)), "again").ok());
+    return *again.SerializeSubmap(Int3(0, 0, 0));
+  }());
 }
 
 TEST_F(SubmapStoreTest, DeserializeRejectsCorruptBytes) {

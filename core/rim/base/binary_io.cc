@@ -384,8 +384,9 @@ absl::Status LinkFileAtomic(const std::string& from, const std::string& to) {
   return FsyncDir(DirName(to));
 }
 
-absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string_view kind) {
-  RIM_RETURN_IF_ERROR(CheckKind(kind));
+namespace {
+// ReadFileChecked up to the kind, which goes to *kind_out.
+absl::StatusOr<std::string> ReadContainer(const std::string& path, std::string* kind_out) {
   RIM_ASSIGN_OR_RETURN(std::string file, ReadWholeFile(path));
 
   // Check order: layout first (magic, version, sizes) so offsets can be trusted, then the checksum
@@ -425,13 +426,37 @@ absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string
     return absl::DataLossError(absl::StrFormat(
         "%s: checksum mismatch: stored 0x%08x, computed 0x%08x", path, stored_crc, actual_crc));
   }
-  if (file_kind != kind) {
-    return absl::DataLossError(
-        absl::StrCat(path, ": kind is ", Printable(file_kind), ", expected ", Printable(kind)));
-  }
+  kind_out->assign(file_kind);
   file.resize(crc_offset);
   file.erase(0, kHeaderSize);
   return file;
+}
+}  // namespace
+
+absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string_view kind) {
+  RIM_RETURN_IF_ERROR(CheckKind(kind));
+  std::string found;
+  RIM_ASSIGN_OR_RETURN(std::string payload, ReadContainer(path, &found));
+  if (found != kind) {
+    return absl::DataLossError(
+        absl::StrCat(path, ": kind is ", Printable(found), ", expected ", Printable(kind)));
+  }
+  return payload;
+}
+
+absl::StatusOr<std::string> ReadFileCheckedOneOf(const std::string& path,
+                                                 std::initializer_list<std::string_view> kinds,
+                                                 std::string* kind) {
+  std::string expected;
+  for (std::string_view k : kinds) {
+    RIM_RETURN_IF_ERROR(CheckKind(k));
+    absl::StrAppend(&expected, expected.empty() ? "" : " or ", Printable(k));
+  }
+  RIM_ASSIGN_OR_RETURN(std::string payload, ReadContainer(path, kind));
+  for (std::string_view k : kinds)
+    if (*kind == k) return payload;
+  return absl::DataLossError(
+      absl::StrCat(path, ": kind is ", Printable(*kind), ", expected ", expected));
 }
 
 absl::Status MakeDirs(const std::string& path) {

@@ -9,6 +9,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <initializer_list>
 #include <string>
 #include <string_view>
 #include <type_traits>
@@ -143,6 +144,11 @@ absl::Status LinkFileAtomic(const std::string& from, const std::string& to);
 // payload. NotFound for a missing file; DataLoss for truncated, corrupt or wrong-kind files. Every
 // message names the path and the problem.
 absl::StatusOr<std::string> ReadFileChecked(const std::string& path, std::string_view kind);
+// The same for a file that may be of any of `kinds` (a newer format and the older ones that still
+// load); the kind it has goes to *kind.
+absl::StatusOr<std::string> ReadFileCheckedOneOf(const std::string& path,
+                                                 std::initializer_list<std::string_view> kinds,
+                                                 std::string* kind);
 
 // Creates a directory and any missing parents, like `mkdir -p`. OK if it already exists.
 absl::Status MakeDirs(const std::string& path);

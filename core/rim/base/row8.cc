@@ -47,6 +47,15 @@ void DecodeRows8(const int8_t* in, size_t rows, int dim, float* out) {
   }
 }
 
+void SanitizeRows8(int8_t* rows, size_t count, int dim) {
+  // 127 · 2^121 < FLT_MAX < 127 · 2^122.
+  constexpr int8_t kMaxExponent = 121;
+  for (size_t r = 0; r < count; ++r, rows += Row8Bytes(dim)) {
+    rows[0] = std::min(rows[0], kMaxExponent);
+    for (int k = 1; k <= dim; ++k) rows[k] = std::max(rows[k], int8_t(-127));
+  }
+}
+
 void RoundRow8(float* row, int dim) {
   int8_t bytes[256];
   if (Row8Bytes(dim) > sizeof(bytes)) return;

@@ -21,6 +21,10 @@ inline constexpr size_t Row8Bytes(int dim) { return size_t(dim) + 1; }
 void EncodeRows8(const float* in, size_t rows, int dim, int8_t* out);
 // Decodes `rows` rows of `dim` values into rows · dim floats.
 void DecodeRows8(const int8_t* in, size_t rows, int dim, float* out);
+// Rows read from a file, made safe in place: values of -128 (which no encoder writes) become
+// -127, and exponents above the largest at which every value decodes finite (121) become that
+// one. Rows that the encoder wrote from finite values are left as they are.
+void SanitizeRows8(int8_t* rows, size_t count, int dim);
 // The floats a row of `dim` values reads back as after a trip through 8-bit storage, in place.
 void RoundRow8(float* row, int dim);
 

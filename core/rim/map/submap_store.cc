@@ -39,7 +39,8 @@ SubmapStore::Submap* SubmapStore::FindLocked(const Int3& key) const {
   Submap& s = it->second;
   s.last_access = ++access_clock_;
   if (s.state == SubmapState::kOnDisk) {
-    auto bytes = ReadFileChecked(SpillPath(key), kSubmapFileKind);
+    SubmapFormat format;
+    auto bytes = ReadSubmapFile(SpillPath(key), &format);
     if (!bytes.ok()) {
       last_error_ = bytes.status();
       s.generation = ++generation_clock_;  // what it reads as (nothing) is not what was saved
@@ -47,7 +48,7 @@ SubmapStore::Submap* SubmapStore::FindLocked(const Int3& key) const {
     }
     Int3 parsed_key;
     Submap parsed;
-    absl::Status st = ParseSubmap(*bytes, SpillPath(key), &parsed_key, &parsed);
+    absl::Status st = ParseSubmap(*bytes, SpillPath(key), format, &parsed_key, &parsed);
     if (!st.ok() || parsed_key != key) {
       last_error_ = st.ok() ? absl::DataLossError(SpillPath(key) + ": holds another sub-map") : st;
       s.generation = ++generation_clock_;

@@ -24,6 +24,10 @@ namespace rim {
 
 enum class SubmapState { kActive = 0, kFrozen = 1, kOnDisk = 2 };
 
+// How a serialised sub-map holds its features: the store's 8-bit rows (what rim writes), or
+// float32 (files written before; they load, rounded to 8-bit rows as any write is).
+enum class SubmapFormat { kRow8, kFloat32 };
+
 struct SubmapStoreStats {
   int active = 0, frozen = 0, on_disk = 0;
   int64_t blocks = 0;
@@ -122,9 +126,11 @@ class SubmapStore {
   // Where the link cannot be made (another file system) the sub-map is written.
   absl::Status SaveTo(const std::string& dir) const;
   absl::Status LoadFrom(const std::string& dir);
-  // One sub-map as bytes and back (also used for spilling). Deserialize replaces the sub-map.
+  // One sub-map as bytes (8-bit rows) and back (also used for spilling). Deserialize replaces the
+  // sub-map; it reads float32 bytes too, from files written before the 8-bit format.
   absl::StatusOr<std::string> SerializeSubmap(const Int3& key) const;
-  absl::Status DeserializeSubmap(const std::string& bytes, const std::string& context);
+  absl::Status DeserializeSubmap(const std::string& bytes, const std::string& context,
+                                 SubmapFormat format = SubmapFormat::kRow8);
 
   // Sticky error of a failed reload of a spilled sub-map (reads then see no data).
   absl::Status last_error() const;
@@ -149,12 +155,12 @@ class SubmapStore {
 
   // Caller holds mu_. Reloads a spilled sub-map; returns null if the key is unknown.
   Submap* FindLocked(const Int3& key) const;
-  absl::Status ParseSubmap(const std::string& bytes, const std::string& context, Int3* key,
-                           Submap* out) const;
+  absl::Status ParseSubmap(const std::string& bytes, const std::string& context,
+                           SubmapFormat format, Int3* key, Submap* out) const;
   void SerializeLocked(const Int3& key, const Submap& s, std::string* out) const;
   // DeserializeSubmap, saying which sub-map it replaced and the stamp and version it now has.
-  absl::Status Install(const std::string& bytes, const std::string& context, Int3* key,
-                       SavedFile* stamp);
+  absl::Status Install(const std::string& bytes, const std::string& context, SubmapFormat format,
+                       Int3* key, SavedFile* stamp);
   // SaveTo for one sub-map: link the file saved_ names when it still holds the sub-map as it is,
   // else write it. Records the file in saved_.
   absl::Status SaveOne(const Int3& key, const std::string& path) const;
@@ -173,8 +179,12 @@ class SubmapStore {
   mutable std::unordered_map<Int3, SavedFile, Int3Hash, Int3Equal> saved_;
 };
 
-// The file kind of a serialised sub-map (spilled, or saved in a checkpoint).
-inline constexpr char kSubmapFileKind[] = "SUBM";
+// The file kinds of a serialised sub-map (spilled, or saved in a checkpoint): 8-bit rows, what
+// rim writes; float32, what it wrote before and still reads.
+inline constexpr char kSubmapFileKind[] = "SUB8";
+inline constexpr char kSubmapFloatFileKind[] = "SUBM";
+// Reads a sub-map file of either kind, saying which format its payload has.
+absl::StatusOr<std::string> ReadSubmapFile(const std::string& path, SubmapFormat* format);
 
 std::string SubmapKeyName(const Int3& key);
 

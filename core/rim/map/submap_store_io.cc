@@ -23,7 +23,6 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
   w.I32(key.z());
   w.U64(s.version);
   w.I32(geometry_.levels());
-  std::vector<float> wide;
   w.I32(geometry_.feature_dim());
   w.I32(config_.block_size);
   for (int l = 0; l < geometry_.levels(); ++l) {
@@ -39,14 +38,9 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
       w.I32(kv->first.x());
       w.I32(kv->first.y());
       w.I32(kv->first.z());
-      // On disk as float32, the format checkpoints have always had: the 8-bit rows widen
-      // exactly, and encode back to the same bytes on load.
-      const std::vector<int8_t>& q = kv->second->features;
-      const int D = geometry_.feature_dim();
-      const size_t rows = q.size() / Row8Bytes(D);
-      wide.resize(rows * size_t(D));
-      DecodeRows8(q.data(), rows, D, wide.data());
-      w.FloatArray(wide.data(), wide.size());
+      // The 8-bit rows as the store keeps them: a quarter of the float32 bytes that older files
+      // hold, and nothing to convert.
+      w.PodVector(kv->second->features);
       w.PodVector(kv->second->observed);
     }
   }
@@ -68,7 +62,7 @@ absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const 
 }
 
 absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::string& context,
-                                      Int3* key_out, Submap* out) const {
+                                      SubmapFormat format, Int3* key_out, Submap* out) const {
   ByteReader r(bytes, context);
   Int3 key;
   uint64_t version;
@@ -113,12 +107,22 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
         return absl::DataLossError(absl::StrCat(context, ": block ", SubmapKeyName(bk),
                                                 " at level ", l, " lies outside its sub-map"));
       auto b = std::make_shared<Block>();
-      RIM_RETURN_IF_ERROR(r.FloatArray(&wide));
+      if (format == SubmapFormat::kFloat32) {
+        RIM_RETURN_IF_ERROR(r.FloatArray(&wide));
+      } else {
+        RIM_RETURN_IF_ERROR(r.PodVector(&b->features));
+        if (b->features.size() != b3 * Row8Bytes(int(dim)))
+          return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
+        SanitizeRows8(b->features.data(), b3, int(dim));
+      }
       RIM_RETURN_IF_ERROR(r.PodVector(&b->observed));
-      if (wide.size() != b3 * dim || b->observed.size() != (l == 0 ? b3 : 0))
+      if (b->observed.size() != (l == 0 ? b3 : 0) ||
+          (format == SubmapFormat::kFloat32 && wide.size() != b3 * dim))
         return absl::DataLossError(absl::StrCat(context, ": block of wrong size at level ", l));
-      b->features.resize(b3 * Row8Bytes(int(dim)));
-      EncodeRows8(wide.data(), b3, int(dim), b->features.data());
+      if (format == SubmapFormat::kFloat32) {
+        b->features.resize(b3 * Row8Bytes(int(dim)));
+        EncodeRows8(wide.data(), b3, int(dim), b->features.data());
+      }
       s.blocks[l].emplace(bk, std::move(b));
       s.bytes += BlockBytes(l);
     }
@@ -129,16 +133,17 @@ absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::strin
   return absl::OkStatus();
 }
 
-absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std::string& context) {
+absl::Status SubmapStore::DeserializeSubmap(const std::string& bytes, const std::string& context,
+                                            SubmapFormat format) {
   Int3 key;
   SavedFile stamp;
-  return Install(bytes, context, &key, &stamp);
+  return Install(bytes, context, format, &key, &stamp);
 }
 
-absl::Status SubmapStore::Install(const std::string& bytes, const std::string& context, Int3* key,
-                                  SavedFile* stamp) {
+absl::Status SubmapStore::Install(const std::string& bytes, const std::string& context,
+                                  SubmapFormat format, Int3* key, SavedFile* stamp) {
   Submap s;
-  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, key, &s));
+  RIM_RETURN_IF_ERROR(ParseSubmap(bytes, context, format, key, &s));
   std::lock_guard<std::mutex> lock(mu_);
   auto it = submaps_.find(*key);
   if (it != submaps_.end()) {
@@ -154,6 +159,14 @@ absl::Status SubmapStore::Install(const std::string& bytes, const std::string& c
   submaps_[*key] = std::move(s);
   saved_.erase(*key);
   return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> ReadSubmapFile(const std::string& path, SubmapFormat* format) {
+  std::string kind;
+  RIM_ASSIGN_OR_RETURN(std::string bytes,
+                       ReadFileCheckedOneOf(path, {kSubmapFileKind, kSubmapFloatFileKind}, &kind));
+  *format = kind == kSubmapFileKind ? SubmapFormat::kRow8 : SubmapFormat::kFloat32;
+  return bytes;
 }
 
 absl::Status SubmapStore::SaveOne(const Int3& key, const std::string& path) const {
@@ -235,10 +248,11 @@ absl::Status SubmapStore::LoadFrom(const std::string& dir) {
   for (const std::string& f : files) {
     // The identity before the read: a file changed while it is read is not the one loaded.
     absl::StatusOr<FileIdentity> identity = IdentifyFile(f);
-    RIM_ASSIGN_OR_RETURN(std::string bytes, ReadFileChecked(f, kSubmapFileKind));
+    SubmapFormat format;
+    RIM_ASSIGN_OR_RETURN(std::string bytes, ReadSubmapFile(f, &format));
     Int3 key;
     SavedFile stamp;
-    RIM_RETURN_IF_ERROR(Install(bytes, f, &key, &stamp));
+    RIM_RETURN_IF_ERROR(Install(bytes, f, format, &key, &stamp));
     if (!identity.ok()) continue;
     // Loading this file again gives the sub-map as it now is, so the next save may link the file
     // rather than write it again.
