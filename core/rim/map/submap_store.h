@@ -158,6 +158,8 @@ class SubmapStore {
   absl::Status ParseSubmap(const std::string& bytes, const std::string& context,
                            SubmapFormat format, Int3* key, Submap* out) const;
   void SerializeLocked(const Int3& key, const Submap& s, std::string* out) const;
+  // SerializeSubmap, with the stamp and version of what it serialised.
+  absl::Status SerializeStamped(const Int3& key, std::string* out, SavedFile* stamp) const;
   // DeserializeSubmap, saying which sub-map it replaced and the stamp and version it now has.
   absl::Status Install(const std::string& bytes, const std::string& context, SubmapFormat format,
                        Int3* key, SavedFile* stamp);

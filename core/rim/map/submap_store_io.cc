@@ -48,6 +48,14 @@ void SubmapStore::SerializeLocked(const Int3& key, const Submap& s, std::string*
 }
 
 absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const {
+  std::string out;
+  SavedFile stamp;
+  RIM_RETURN_IF_ERROR(SerializeStamped(key, &out, &stamp));
+  return out;
+}
+
+absl::Status SubmapStore::SerializeStamped(const Int3& key, std::string* out,
+                                           SavedFile* stamp) const {
   std::lock_guard<std::mutex> lock(mu_);
   const Submap* s = FindLocked(key);
   if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
@@ -56,9 +64,10 @@ absl::StatusOr<std::string> SubmapStore::SerializeSubmap(const Int3& key) const 
     return absl::DataLossError(absl::StrCat("sub-map ", SubmapKeyName(key),
                                             " could not be reloaded from ", SpillPath(key), ": ",
                                             last_error_.message()));
-  std::string out;
-  SerializeLocked(key, *s, &out);
-  return out;
+  SerializeLocked(key, *s, out);
+  stamp->generation = s->generation;
+  stamp->version = s->version;
+  return absl::OkStatus();
 }
 
 absl::Status SubmapStore::ParseSubmap(const std::string& bytes, const std::string& context,
@@ -195,18 +204,7 @@ absl::Status SubmapStore::SaveOne(const Int3& key, const std::string& path) cons
   }
   SavedFile written;
   std::string bytes;
-  {
-    std::lock_guard<std::mutex> lock(mu_);
-    const Submap* s = FindLocked(key);
-    if (!s) return absl::NotFoundError(absl::StrCat("no sub-map ", SubmapKeyName(key)));
-    if (s->state == SubmapState::kOnDisk)
-      return absl::DataLossError(absl::StrCat("sub-map ", SubmapKeyName(key),
-                                              " could not be reloaded from ", SpillPath(key), ": ",
-                                              last_error_.message()));
-    SerializeLocked(key, *s, &bytes);
-    written.generation = s->generation;
-    written.version = s->version;
-  }
+  RIM_RETURN_IF_ERROR(SerializeStamped(key, &bytes, &written));
   RIM_RETURN_IF_ERROR(WriteFileAtomic(path, kSubmapFileKind, bytes));
   RIM_ASSIGN_OR_RETURN(written.identity, IdentifyFile(path));
   written.path = path;
