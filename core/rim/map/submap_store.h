@@ -51,6 +51,7 @@ class SubmapStore {
     int index;
   };
   BlockAddress Address(int level, const Int3& g) const;
+  int block_size() const { return config_.block_size; }
   int block_voxels() const { return config_.block_size * config_.block_size * config_.block_size; }
 
   // Features are stored as 8-bit rows with a shared power-of-two scale (rim/base/row8.h): the

@@ -171,8 +171,8 @@ FeatureReader::FeatureReader(const LocalMap& map, const SubmapStore& store)
       zeros_(map.geometry().feature_dim(), 0.f),
       widened_(map.geometry().feature_dim()) {}
 
-FeatureReader::Slot FeatureReader::Fetch(int level, const Int3& g) {
-  const SubmapStore::BlockAddress a = store_.Address(level, g);
+FeatureReader::Slot FeatureReader::Fetch(int level, const Int3& g,
+                                         const SubmapStore::BlockAddress& a) {
   if (last_valid_[level] && last_origin_[level] == a.origin) return {last_block_[level], a.index};
   auto& cache = blocks_[level];
   auto it = cache.find(a.origin);
@@ -256,6 +256,34 @@ void FeatureReader::EncodeCell8(const float f[3], float inv_h, const float* cons
   }
 }
 
+bool FeatureReader::StoreCorners8(int l, const Int3& base, const float** corner, float* rows) {
+  if (map_.placed()) {
+    // A corner in the box (closed: lattice points lo..hi) reads the live map: take this path
+    // only when none is.
+    const IntBox box = map_.LatticeBox(l);
+    bool apart = false;
+    for (int a = 0; a < 3; ++a) apart = apart || base[a] + 1 < box.lo[a] || base[a] > box.hi[a];
+    if (!apart) return false;
+  }
+  const SubmapStore::BlockAddress a = store_.Address(l, base);
+  // Both extreme corners in one block: so are the other six (a block is a cube of lattice
+  // points within one sub-map), at fixed offsets from the first.
+  if (!(store_.Address(l, base + Int3(1, 1, 1)).origin == a.origin)) return false;
+  const Slot s = Fetch(l, base, a);
+  const int B = store_.block_size();
+  for (int c = 0; c < 8; ++c) {
+    const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+    if (s.block == nullptr) {
+      corner[c] = zeros_.data();
+      continue;
+    }
+    const int index = s.index + (cx * B + cy) * B + cz;
+    DecodeRows8(&s.block->features[size_t(index) * Row8Bytes(8)], 1, 8, rows + 8 * c);
+    corner[c] = rows + 8 * c;
+  }
+  return true;
+}
+
 void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
   const MapGeometry& geo = map_.geometry();
   const int L = geo.levels(), D = geo.feature_dim();
@@ -285,7 +313,9 @@ void FeatureReader::Encode(const Vec3d& p_W, float* features, float* jacobian) {
       for (int c = 0; c < 8; ++c) corner[c] = map_.level(l).features(slots[c]);
     }
     if (D == 8) {  // every preset
-      EncodeCell8(f, float(inv_h), inside ? corner : nullptr, l, base, out, jac);
+      float rows[64];
+      const bool whole = inside || StoreCorners8(l, base, corner, rows);
+      EncodeCell8(f, float(inv_h), whole ? corner : nullptr, l, base, out, jac);
       continue;
     }
     for (int c = 0; c < 8; ++c) {

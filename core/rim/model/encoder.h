@@ -87,11 +87,17 @@ class FeatureReader {
     const SubmapStore::Block* block;  // null: no data
     int index;
   };
-  Slot Fetch(int level, const Int3& g);
+  Slot Fetch(int level, const Int3& g) { return Fetch(level, g, store_.Address(level, g)); }
+  Slot Fetch(int level, const Int3& g, const SubmapStore::BlockAddress& a);
   // One level's cell of Encode for D = 8: `f` the point's fractions in the cell, `corner` the 8
   // rows when the cell is in the live box (else null: read through Get).
   void EncodeCell8(const float f[3], float inv_h, const float* const* corner, int l,
                    const Int3& base, float* out, float* jac);
+  // The 8 corner rows of a level-l cell that lies wholly outside the live box and in one store
+  // block, decoded into `rows` (8 × 8 floats) with `corner` pointing at them: one address, one
+  // block lookup and one decode for the cell instead of one of each per corner. False (nothing
+  // written) when a corner is in the box or the corners span blocks; Get reads those.
+  bool StoreCorners8(int l, const Int3& base, const float** corner, float* rows);
 
   const LocalMap& map_;
   const SubmapStore& store_;
