@@ -395,40 +395,84 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
   const double s = geometry_->leaf_m();
   std::vector<Surfel> out;
   std::mutex out_mu;
-  // Two Newton steps from each voxel's centre onto the zero level, p ← p − f ∇f / |∇f|², the
-  // second from where the first landed; the voxel keeps the point when it lies in it (with a
-  // hair of slack) and the second step was short.
+  // Where the last refresh found the zero level, by voxel: the next refresh starts there.
+  const std::shared_ptr<const std::vector<Surfel>> before = distance_->Surfels(key);
+  // Newton steps onto the zero level, p ← p − f ∇f / |∇f|². A voxel that held a surfel starts
+  // from it: the level moves millimetres between refreshes, so one step lands on it, and the
+  // voxel keeps the point when that step was short. Any other voxel, and one whose step from its
+  // old surfel was long, starts from its centre and takes two steps, the second from where the
+  // first landed. Either way the voxel keeps the point when it lies in it (with a hair of slack)
+  // and the last step was short.
+  enum Stage : uint8_t { kFromSurfel, kFirst, kSecond, kDone, kDropped };
   ForChunks(voxels.size(), config_.train.threads, [&](size_t begin, size_t m) {
     std::vector<float> p(3 * m), f(m), g(3 * m);
-    for (size_t i = 0; i < m; ++i)
+    std::vector<uint8_t> stage(m, kFirst);
+    std::vector<float> old_n(3 * m);
+    auto centre = [&](size_t i) {
       for (int a = 0; a < 3; ++a) p[3 * i + a] = float((voxels[begin + i][a] + 0.5) * s);
-    std::vector<size_t> live(m);
-    for (size_t i = 0; i < m; ++i) live[i] = i;
-    for (int step = 0; step < 2; ++step) {
-      std::vector<float> q(3 * live.size()), fv(live.size()), gv(3 * live.size());
+    };
+    for (size_t i = 0; i < m; ++i) {
+      centre(i);
+      if (!before) continue;
+      const uint32_t index = distance_->VoxelIndex(key, voxels[begin + i]);
+      auto it = std::lower_bound(before->begin(), before->end(), index,
+                                 [](const Surfel& x, uint32_t v) { return x.voxel < v; });
+      if (it == before->end() || it->voxel != index) continue;
+      for (int a = 0; a < 3; ++a) p[3 * i + a] = it->p[a];
+      for (int a = 0; a < 3; ++a) old_n[3 * i + a] = it->n[a];
+      stage[i] = kFromSurfel;
+    }
+    std::vector<size_t> live;
+    std::vector<float> q, fv, gv;
+    while (true) {
+      live.clear();
+      for (size_t i = 0; i < m; ++i)
+        if (stage[i] < kDone) live.push_back(i);
+      if (live.empty()) break;
+      q.resize(3 * live.size());
+      fv.resize(live.size());
+      gv.resize(3 * live.size());
       for (size_t k = 0; k < live.size(); ++k)
         for (int a = 0; a < 3; ++a) q[3 * k + a] = p[3 * live[k] + a];
       EvalNeural(q.data(), live.size(), fv.data(), gv.data(), nullptr);
-      std::vector<size_t> next;
       for (size_t k = 0; k < live.size(); ++k) {
         const size_t i = live[k];
         const float* gk = &gv[3 * k];
         const float g2 = gk[0] * gk[0] + gk[1] * gk[1] + gk[2] * gk[2];
-        // The surface cannot cross a voxel whose centre is farther than its half diagonal.
         // The Newton step's length |f| / |∇f| (the field's slope is not 1: along-ray labels
         // steepen it where rays graze a surface): a surface farther than the voxel's half
         // diagonal from its centre does not cross it.
-        const float step_m = std::abs(fv[k]) / std::sqrt(std::max(g2, 1e-12f));
-        if (!(g2 > 0.01f) || step_m > (step == 0 ? 0.9 : 0.5) * s) continue;
+        const float len = std::sqrt(std::max(g2, 1e-12f));
+        const float step_m = std::abs(fv[k]) / len;
+        bool ok = g2 > 0.01f && step_m <= (stage[i] == kFirst ? 0.9 : 0.5) * s;
+        if (stage[i] == kFromSurfel) {
+          // Only where the level barely moved (a quarter voxel) and did not turn (26°): a voxel
+          // whose field changes more goes back to the centre's two steps, which decide again
+          // whether the level crosses it. Without these bounds a surfel, once found, stayed
+          // where the centre's steps would drop it, and gradients at 0.1–2 m got worse.
+          const float* n = &old_n[3 * i];
+          ok = ok && step_m <= 0.25 * s &&
+               (gk[0] * n[0] + gk[1] * n[1] + gk[2] * n[2]) >= 0.9f * len;
+        }
+        if (!ok) {
+          if (stage[i] == kFromSurfel) {
+            stage[i] = kFirst;
+            centre(i);
+          } else {
+            stage[i] = kDropped;
+          }
+          continue;
+        }
         f[i] = fv[k];
         for (int a = 0; a < 3; ++a) {
           g[3 * i + a] = gk[a];
           p[3 * i + a] -= fv[k] * gk[a] / g2;
         }
-        next.push_back(i);
+        stage[i] = stage[i] == kFirst ? kSecond : kDone;
       }
-      live.swap(next);
     }
+    for (size_t i = 0; i < m; ++i)
+      if (stage[i] == kDone) live.push_back(i);
     std::vector<Surfel> mine;
     for (size_t i : live) {
       const Int3& v = voxels[begin + i];

@@ -254,6 +254,13 @@ void DistanceField::Replace(const Int3& key, const std::vector<IntBox>& regions,
     parts_.erase(key);
 }
 
+std::shared_ptr<const std::vector<Surfel>> DistanceField::Surfels(const Int3& key) const {
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  auto it = parts_.find(key);
+  if (it == parts_.end()) return nullptr;
+  return std::shared_ptr<const std::vector<Surfel>>(it->second, &it->second->surfels);
+}
+
 void DistanceField::Clear() {
   std::unique_lock<std::shared_mutex> lock(mu_);
   parts_.clear();

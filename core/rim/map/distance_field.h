@@ -54,6 +54,9 @@ class DistanceField {
   // boxes; empty: all of them) and adds `fresh`, whose voxels must lie there too.
   void Replace(const Int3& key, const std::vector<IntBox>& regions, std::vector<Surfel> fresh);
   void Clear();
+  // The surfels of sub-map `key` as they stand, sorted by voxel index (null when it has none);
+  // immutable, so a caller may read them while the field is replaced.
+  std::shared_ptr<const std::vector<Surfel>> Surfels(const Int3& key) const;
 
   // Signed distance at n points (xyz, world frame), bounded by max_distance_m > 0.
   // - sdf[i]: the distance, positive on the normal's side; ±max_distance_m is never exceeded.
