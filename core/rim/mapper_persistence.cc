@@ -39,32 +39,55 @@ int CheckpointNumber(const std::string& name) {
   return n;
 }
 
-void SerializeLocalMap(const LocalMap& map, ByteWriter* w) {
+// The slots of each level that hold data (the dense grids are mostly zero), in slot order.
+std::vector<std::vector<int64_t>> SlotsWithData(const LocalMap& map) {
+  std::vector<std::vector<int64_t>> out(size_t(map.geometry().levels()));
+  for (int l = 0; l < map.geometry().levels(); ++l) {
+    const LocalMap::Level& lv = map.level(l);
+    size_t n = 0;
+    for (int64_t s = 0; s < lv.slots(); ++s) n += lv.has_data(s) ? 1 : 0;
+    out[size_t(l)].reserve(n);
+    for (int64_t s = 0; s < lv.slots(); ++s)
+      if (lv.has_data(s)) out[size_t(l)].push_back(s);
+  }
+  return out;
+}
+
+// Bytes SerializeLocalMap writes for these slots.
+size_t LocalMapBytes(const LocalMap& map, const std::vector<std::vector<int64_t>>& slots) {
+  const size_t row = size_t(map.geometry().feature_dim()) * sizeof(float);
+  size_t bytes = 1 + 3 * sizeof(int32_t);
+  for (const auto& level : slots)
+    bytes += 6 * sizeof(uint64_t) +
+             level.size() * (sizeof(int64_t) + 3 * row + sizeof(int32_t) + sizeof(uint8_t));
+  return bytes;
+}
+
+// Per level six arrays, each a count and its elements as ByteWriter::PodVector lays them out:
+// the slots, their features, Adam moments m and v, step counts and flags. Written straight from
+// the grids: gathering them into vectors first, each grown by doubling, copied the local map
+// (most of a checkpoint's bytes) several times over.
+void SerializeLocalMap(const LocalMap& map, const std::vector<std::vector<int64_t>>& slots,
+                       ByteWriter* w) {
   const int D = map.geometry().feature_dim();
+  const size_t row = size_t(D) * sizeof(float);
   w->U8(map.placed() ? 1 : 0);
   for (int a = 0; a < 3; ++a) w->I32(map.coarse_origin()[a]);
   for (int l = 0; l < map.geometry().levels(); ++l) {
     const LocalMap::Level& lv = map.level(l);
-    // Only slots that hold data: the dense grids are mostly zero.
-    std::vector<int64_t> slots;
-    std::vector<float> f, m, v;
-    std::vector<int32_t> steps;
-    std::vector<uint8_t> flags;
-    for (int64_t s = 0; s < lv.slots(); ++s) {
-      if (!lv.has_data(s)) continue;
-      slots.push_back(s);
-      f.insert(f.end(), lv.features(s), lv.features(s) + D);
-      m.insert(m.end(), lv.adam_m(s), lv.adam_m(s) + D);
-      v.insert(v.end(), lv.adam_v(s), lv.adam_v(s) + D);
-      steps.push_back(lv.adam_steps(s));
-      flags.push_back(lv.flags(s));
-    }
-    w->PodVector(slots);
-    w->PodVector(f);
-    w->PodVector(m);
-    w->PodVector(v);
-    w->PodVector(steps);
-    w->PodVector(flags);
+    const std::vector<int64_t>& level = slots[size_t(l)];
+    const uint64_t n = level.size();
+    w->PodVector(level);
+    w->U64(n * uint64_t(D));
+    for (int64_t s : level) w->Bytes(lv.features(s), row);
+    w->U64(n * uint64_t(D));
+    for (int64_t s : level) w->Bytes(lv.adam_m(s), row);
+    w->U64(n * uint64_t(D));
+    for (int64_t s : level) w->Bytes(lv.adam_v(s), row);
+    w->U64(n);
+    for (int64_t s : level) w->I32(lv.adam_steps(s));
+    w->U64(n);
+    for (int64_t s : level) w->U8(lv.flags(s));
   }
 }
 
@@ -124,7 +147,11 @@ absl::Status Mapper::SaveState(const std::string& path) const {
   w.U64(uint64_t(frames_));
   w.U64(map_version_.load());
   decoder_->Serialize(&w);
-  SerializeLocalMap(*local_map_, &w);
+  // Room for the whole payload at once (the point buffer: two float triples a point, and its
+  // generator's state), so that the string holding it is never copied to grow.
+  const std::vector<std::vector<int64_t>> slots = SlotsWithData(*local_map_);
+  w.Reserve(LocalMapBytes(*local_map_, slots) + buffer_->size() * 6 * sizeof(float) + 65536);
+  SerializeLocalMap(*local_map_, slots, &w);
   buffer_->Serialize(&w);
   std::ostringstream rng;
   rng << trainer_->sampler().rng();

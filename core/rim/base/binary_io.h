@@ -54,6 +54,10 @@ class ByteWriter {
   }
 
   const std::string& data() const { return buf_; }
+  size_t size() const { return buf_.size(); }
+  // Makes room for `more` further bytes at once, so that a large payload written piecewise is
+  // not copied again each time the buffer doubles.
+  void Reserve(size_t more) { buf_.reserve(buf_.size() + more); }
   // Hands the buffer over and leaves the writer empty.
   std::string Release();
 
