@@ -68,6 +68,8 @@ Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
   stats_.integrated = uint64_t(mapper_->frames());
   stats_.accepted = stats_.integrated;
   stats_.iterations_per_frame = mapper_->config().train.iterations;
+  // The trainer below decides when the distance field is refreshed (Run).
+  mapper_->set_refresh_in_frame(false);
   trainer_ = std::thread([this] { Run(); });
 }
 
@@ -327,12 +329,19 @@ void Session::Run() {
       std::optional<ComputeScheduler::Lease> slot;
       if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
       status = mapper_->IntegrateScan(item.scan, iterations, &timing);
-      const double now = SteadySeconds();
-      if (timing.distance_s > 0) {  // IntegrateScan's own refresh, every query.refresh_frames
-        last_refresh_end_s_ = now;
-        last_refresh_s_ = timing.distance_s;
-        if (options_.events) options_.events->DistanceRefreshed(robot_id_, timing.distance_s);
+      // The field's schedule (Mapper::DistanceRefreshDue: every query.refresh_frames frames, more
+      // often while the map is young), held to a fifth of the session's time like the refreshes
+      // below: a due refresh waits while the last one ended less than four of its durations ago,
+      // so that under load (a refresh then takes longer, and frames come back to back) training
+      // keeps its share; but never past twice query.refresh_frames.
+      bool overdue = false;
+      if (status.ok() && mapper_->DistanceRefreshDue(&overdue) &&
+          (overdue || SteadySeconds() - last_refresh_end_s_ >= 4 * last_refresh_s_)) {
+        const double seconds = RefreshDistanceFieldNow();
+        timing.distance_s += seconds;
+        timing.total_s += seconds;
       }
+      const double now = SteadySeconds();
       // Nothing waiting: bring the distance field up to this frame before it is acknowledged,
       // so that a planner that waited for the ack reads distances from it; but at most a fifth
       // of the session's time goes to refreshing, or a robot streaming at the rate the map can

@@ -210,12 +210,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
-  // Every query.refresh_frames frames, and more often while the map is young and small (after
-  // frames 1, 2, 4, 8, ...), so that a short session's first queries see its surfaces.
-  if (distance_frames_ < 0 ||
-      frames_ - distance_frames_ >=
-          std::min<int64_t>(config_.query.refresh_frames, std::max<int64_t>(1, distance_frames_)))
-    t.distance_s = RefreshDistanceField();
+  if (refresh_in_frame_ && RefreshDueLocked(nullptr)) t.distance_s = RefreshDistanceField();
   t.sample_s = it.sample_s;
   t.encode_s = it.encode_s;
   t.forward_s = it.forward_s;
@@ -494,6 +489,22 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
     out.insert(out.end(), mine.begin(), mine.end());
   });
   return out;
+}
+
+bool Mapper::RefreshDueLocked(bool* overdue) const {
+  // Every query.refresh_frames frames, and more often while the map is young and small (after
+  // frames 1, 2, 4, 8, ...), so that a short session's first queries see its surfaces.
+  const int64_t every = config_.query.refresh_frames;
+  if (overdue) *overdue = distance_frames_ < 0 || frames_ - distance_frames_ >= 2 * every;
+  return distance_frames_ < 0 ||
+         frames_ - distance_frames_ >=
+             std::min<int64_t>(every, std::max<int64_t>(1, distance_frames_));
+}
+
+bool Mapper::DistanceRefreshDue(bool* overdue) const {
+  std::lock_guard<std::mutex> refresh(refresh_mu_);
+  std::shared_lock lock(mu_);
+  return RefreshDueLocked(overdue);
 }
 
 bool Mapper::DistanceFieldBehind() const {

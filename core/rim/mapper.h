@@ -142,6 +142,13 @@ class Mapper {
   double RefreshDistanceField();
   // Whether frames were integrated since the last refresh.
   bool DistanceFieldBehind() const;
+  // Who keeps the schedule above. On (the default), IntegrateScan refreshes when it is due. Off,
+  // it never refreshes, and the caller asks DistanceRefreshDue after each frame and decides (the
+  // server holds refreshes to a share of the session's time). Set before frames are integrated.
+  void set_refresh_in_frame(bool on) { refresh_in_frame_ = on; }
+  // Whether the schedule has a refresh due; `overdue` (may be null): due since at least
+  // query.refresh_frames further frames.
+  bool DistanceRefreshDue(bool* overdue = nullptr) const;
 
   // Tiles (one per sub-map) whose version is newer than `since_version`.
   std::vector<TileInfo> ListTiles(uint64_t since_version) const;
@@ -208,6 +215,9 @@ class Mapper {
   mutable std::mutex refresh_mu_;  // one refresh (or save) at a time
   int64_t distance_frames_ = -1;
   bool distance_all_stale_ = true;
+  bool refresh_in_frame_ = true;
+  // DistanceRefreshDue without the locks (the training thread, or a caller holding them).
+  bool RefreshDueLocked(bool* overdue) const;
   struct OutsideRaysHolder;
   std::unique_ptr<OutsideRaysHolder> outside_;
 

@@ -283,6 +283,46 @@ TEST(MapperDeferredTest, SurfacesSeenFromOutsideTheBoxEnterTheMapWhenItArrives) 
   EXPECT_GT(fraction[1], 0.8) << "deferred rays did not reach the map";
 }
 
+TEST(MapperDistanceTest, ACallerThatKeepsTheScheduleIsToldWhenARefreshIsDueAndOverdue) {
+  const AnalyticScene scene = SmallScene();
+  auto mapper = Mapper::Create(SmallConfig({"query.refresh_frames=3"}));
+  ASSERT_TRUE(mapper.ok());
+  (*mapper)->set_refresh_in_frame(false);
+  bool overdue = false;
+  // Before any frame: due and overdue (a field that was never extracted).
+  EXPECT_TRUE((*mapper)->DistanceRefreshDue(&overdue));
+  EXPECT_TRUE(overdue);
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 1)).ok());
+  // IntegrateScan left it to the caller: nothing extracted yet.
+  EXPECT_EQ((*mapper)->Stats().distance_surfels, 0);
+  EXPECT_TRUE((*mapper)->DistanceFieldBehind());
+  (*mapper)->RefreshDistanceField();
+  EXPECT_FALSE((*mapper)->DistanceFieldBehind());
+  EXPECT_FALSE((*mapper)->DistanceRefreshDue(&overdue));
+  EXPECT_FALSE(overdue);
+  // Refreshed at frame 1: due after frame 2 (the young map's schedule), not overdue.
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 2)).ok());
+  EXPECT_TRUE((*mapper)->DistanceRefreshDue(&overdue));
+  EXPECT_FALSE(overdue);
+  (*mapper)->RefreshDistanceField();
+  // Refreshed at frame 2: due after 4 frames (min(3, 2) = 2 further), overdue after 6 (2 × 3).
+  std::vector<std::pair<bool, bool>> seen;
+  for (uint32_t i = 3; i <= 8; ++i) {
+    ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, i)).ok());
+    const bool due = (*mapper)->DistanceRefreshDue(&overdue);
+    seen.emplace_back(due, overdue);
+  }
+  const std::vector<std::pair<bool, bool>> expected = {{false, false}, {true, false}, {true, false},
+                                                       {true, false},  {true, false}, {true, true}};
+  EXPECT_EQ(seen, expected);
+  // The default schedule refreshes inside IntegrateScan: nothing is left due.
+  (*mapper)->set_refresh_in_frame(true);
+  ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.f, 9)).ok());
+  EXPECT_FALSE((*mapper)->DistanceRefreshDue(&overdue));
+  EXPECT_FALSE((*mapper)->DistanceFieldBehind());
+  EXPECT_GT((*mapper)->Stats().distance_surfels, 100);
+}
+
 TEST(MapperDistanceTest, TheDistanceFieldIsSavedAndACorruptFileIsDataLossNamingIt) {
   const std::string dir = ::testing::TempDir() + "/rim_mapper_distance_save";
   std::filesystem::remove_all(dir);
