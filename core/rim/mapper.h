@@ -137,7 +137,8 @@ class Mapper {
   // Brings the distance field up to the map: re-extracts the surfels of the box (widened by the
   // coarse voxel whose rows it shares) and of what the box left since the last refresh, or of
   // the whole map while the decoder trains. IntegrateScan calls it after frames 1, 2, 4, 8, ...
-  // and then every query.refresh_frames frames; a caller with idle time may call it in between.
+  // and then every query.refresh_frames frames (unless set_refresh_in_frame(false) hands that
+  // schedule to the caller); a caller with idle time may call it in between.
   // Returns seconds spent.
   double RefreshDistanceField();
   // Whether frames were integrated since the last refresh.
