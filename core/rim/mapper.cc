@@ -443,8 +443,8 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
         if (stage[i] == kFromSurfel) {
           // Only where the level barely moved (a quarter voxel) and did not turn (26°): a voxel
           // whose field changes more goes back to the centre's two steps, which decide again
-          // whether the level crosses it. Without these bounds a surfel, once found, stayed
-          // where the centre's steps would drop it, and gradients at 0.1–2 m got worse.
+          // whether the level crosses it. Without these bounds gradients at 0.1–2 m came out
+          // worse on the dev city (BENCHMARK.md, "A cheaper distance refresh").
           const float* n = &old_n[3 * i];
           ok = ok && step_m <= 0.25 * s &&
                (gk[0] * n[0] + gk[1] * n[1] + gk[2] * n[2]) >= 0.9f * len;
