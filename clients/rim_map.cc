@@ -211,9 +211,9 @@ absl::Status Run(const Args& args) {
   std::printf("mesh: %zu vertices, %zu faces in %.1f s -> %s/mesh.ply\n", merged.vertices.size(),
               merged.faces.size(), mesh_s, args.out.c_str());
   const MapperStats final_stats = mapper->Stats();
-  std::printf("distance field: %lld surfels, %.1f MB, final refresh %.0f ms\n",
-              (long long)final_stats.distance_surfels, double(final_stats.distance_bytes) / 1e6,
-              1e3 * final_refresh_s);
+  std::printf("distance field: %lld surfels, %lld returns, %.1f MB, final refresh %.0f ms\n",
+              (long long)final_stats.distance_surfels, (long long)final_stats.distance_returns,
+              double(final_stats.distance_bytes) / 1e6, 1e3 * final_refresh_s);
 
   std::string timing = "{\n  \"stages_ms_per_frame\": {";
   for (const Row& r : rows)

@@ -52,6 +52,8 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   outside_ = std::make_unique<OutsideRaysHolder>();
   distance_ = std::make_unique<DistanceField>(
       *geometry_, float(config.query.surfel_radius_voxels * geometry_->leaf_m()));
+  // Returns lie one per deferred voxel: half that spacing spans the gaps between neighbours.
+  distance_->SetReturnsBlendRadius(0.5f * config.deferred.voxel_m);
   mesh_changes_ = std::make_unique<MeshChangeLog>();
   mesh_cache_ = std::make_unique<MeshBlockCache>();
 }
@@ -564,7 +566,46 @@ double Mapper::RefreshDistanceField() {
                         distance_->Replace(keys[size_t(k)], regions, std::move(fresh[size_t(k)]));
                     });
   if (box) distance_box_ = std::move(box);
+  RefreshReturns();
   return Now() - start;
+}
+
+void Mapper::RefreshReturns() {
+  const std::vector<Int3> keys = deferred_->TakeChanged();
+  if (keys.empty()) return;
+  const double inv_s = 1.0 / geometry_->leaf_m();
+  std::vector<std::vector<Surfel>> built(keys.size());
+  eval::ParallelFor(
+      int64_t(keys.size()), 1, std::max(config_.train.threads, 1), [&](int64_t begin, int64_t end) {
+        FeatureReader reader(*local_map_, *store_);
+        std::vector<uint32_t> voxels;
+        std::vector<float> rays;
+        for (int64_t k = begin; k < end; ++k) {
+          deferred_->Rays(keys[size_t(k)], &voxels, &rays);
+          std::vector<Surfel>& out = built[size_t(k)];
+          out.reserve(voxels.size());
+          for (size_t i = 0; i < voxels.size(); ++i) {
+            const float* p = &rays[6 * i];
+            const Int3 g0(int(std::floor(p[0] * inv_s)), int(std::floor(p[1] * inv_s)),
+                          int(std::floor(p[2] * inv_s)));
+            // Where training put surface samples, the network's zero level holds the surface.
+            if (reader.ObservedBits(g0) & LocalMap::kObserved) continue;
+            Surfel s;
+            float n2 = 0;
+            for (int a = 0; a < 3; ++a) {
+              s.p[a] = p[a];
+              s.n[a] = p[3 + a] - p[a];
+              n2 += s.n[a] * s.n[a];
+            }
+            if (!(n2 > 1e-12f)) continue;
+            const float inv = 1.f / std::sqrt(n2);
+            for (float& c : s.n) c *= inv;
+            s.voxel = voxels[i];
+            out.push_back(s);
+          }
+        }
+      });
+  for (size_t k = 0; k < keys.size(); ++k) distance_->ReplaceReturns(keys[k], std::move(built[k]));
 }
 
 std::vector<TileInfo> Mapper::ListTiles(uint64_t since_version) const {
@@ -625,6 +666,7 @@ MapperStats Mapper::Stats() const {
   s.local_map_bytes = local_map_->MemoryBytes();
   const DistanceFieldStats distance = distance_->Stats();
   s.distance_surfels = distance.surfels;
+  s.distance_returns = distance.returns;
   s.distance_bytes = distance.bytes;
   s.mesh_cache_bytes = mesh_cache_->MemoryBytes();
   const SubmapStoreStats st = store_->Stats();

@@ -94,6 +94,7 @@ struct MapperStats {
   int64_t deferred_bytes = 0;
   int64_t local_map_bytes = 0;
   int64_t distance_surfels = 0;  // the metric distance field (map/distance_field.h)
+  int64_t distance_returns = 0;  // its deferred returns (surface the network has not learnt)
   int64_t distance_bytes = 0;
   int64_t mesh_cache_bytes = 0;  // cached mesh blocks (MeshTile)
   int64_t submap_bytes = 0;
@@ -195,6 +196,10 @@ class Mapper {
   void EvalNeural(const float* xyz, size_t n, float* sdf, float* grad, uint8_t* observed) const;
   // Surfels of sub-map `key` in `regions` (all of it when empty); caller holds mu_ shared.
   std::vector<Surfel> ExtractSurfels(const Int3& key, const std::vector<IntBox>& regions) const;
+  // Rebuilds the distance field's returns (DistanceField::ReplaceReturns) in the deferred
+  // sub-maps that changed since the last rebuild: every kept ray whose endpoint voxel the map
+  // has not observed as surface. Under refresh_mu_ and a shared mu_.
+  void RefreshReturns();
   absl::Status LoadDeferred(const std::string& path);
 
   MapperConfig config_;

@@ -186,6 +186,13 @@ absl::Status Mapper::SaveDistance(const std::string& path) const {
     for (const Int3* v : {&distance_box_->lo, &distance_box_->hi})
       for (int a = 0; a < 3; ++a) w.I32((*v)[a]);
   distance_->Serialize(&w);
+  // The returns and the deferred sub-maps whose rays changed since they were built, so that a
+  // restored map answers as this one does and rebuilds the same ones at its next refresh.
+  distance_->SerializeReturns(&w);
+  const std::vector<Int3> changed = deferred_->Changed();
+  w.U64(changed.size());
+  for (const Int3& key : changed)
+    for (int a = 0; a < 3; ++a) w.I32(key[a]);
   return WriteFileAtomic(path, "DIST", w.data());
 }
 
@@ -203,6 +210,22 @@ absl::Status Mapper::LoadDistance(const std::string& path) {
   if (s.ok() && (stale > 1 || has_box > 1 || frames_plus_one > uint64_t(frames_) + 1))
     s = absl::DataLossError("bad refresh state");
   if (s.ok()) s = distance_->Deserialize(&r);
+  // Files from before returns were kept end here: the field builds them from the deferred store
+  // (which counts every sub-map it loaded as changed).
+  const bool has_returns = r.remaining() > 0;
+  std::vector<Int3> changed;
+  if (s.ok() && has_returns) {
+    s = distance_->DeserializeReturns(&r);
+    uint64_t count = 0;
+    if (s.ok()) s = r.U64(&count);
+    if (s.ok() && count > r.remaining() / 12)
+      s = absl::DataLossError("bad count of changed sub-maps");
+    for (uint64_t k = 0; k < count && s.ok(); ++k) {
+      Int3 key;
+      for (int a = 0; a < 3 && s.ok(); ++a) s = r.I32(&key[a]);
+      changed.push_back(key);
+    }
+  }
   if (s.ok()) s = r.ExpectEnd();
   if (!s.ok()) {
     distance_->Clear();
@@ -213,6 +236,10 @@ absl::Status Mapper::LoadDistance(const std::string& path) {
   distance_frames_ = int64_t(frames_plus_one) - 1;
   distance_all_stale_ = stale != 0;
   distance_box_ = has_box ? std::make_unique<IntBox>(box) : nullptr;
+  if (has_returns)
+    deferred_->SetChanged(changed);
+  else
+    RefreshReturns();
   return absl::OkStatus();
 }
 

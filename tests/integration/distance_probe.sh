@@ -4,6 +4,9 @@
 # against the exact distance to the scene's mesh at free-space points on the sensor's rays.
 #   close: facades on the street frontage (0-0.5 m set-back), walls driven past at arm's length;
 #   open:  facades 6-8 m back behind a wide flat ground seen at grazing angles, 1 cm range noise.
+#   beside: facades 2-3.5 m back (11.5-13 m from the centre line), just beyond the side of the
+#          +-10 m box: no box covers them, so the network never learns them and only the
+#          distance field's returns (the deferred store's rays) put them in the distances.
 # Usage: distance_probe.sh BUILD_DIR [WORK_DIR]
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
@@ -25,8 +28,10 @@ run() {  # NAME SEED rim_sim options...
 }
 run close 41 --building-setback 0,0.5
 run open 42 --building-setback 6,8 --noise 0.01
+run beside 43 --building-setback 2,3.5
 
-python3 - "$WORK/map_close/probe.json" "$WORK/map_open/probe.json" <<'PY'
+python3 - "$WORK/map_close/probe.json" "$WORK/map_open/probe.json" \
+  "$WORK/map_beside/probe.json" <<'PY'
 import json, sys
 # Regression limits, not the benchmark's targets (BENCHMARK.md, "Metric distances", measures
 # those on longer runs of held-out cities): these cities are short (30 frames at 20 iterations),
@@ -35,8 +40,18 @@ import json, sys
 # beyond 0.1 m, 62-76 % of points more than 10 cm too far at 0.1-1 m, gradients within 10 degrees
 # for 1-55 %).
 failures = []
+# Over each whole city, the target BENCHMARK.md holds held-out cities to: at most 0.5 % of points
+# more than 10 cm too far. The build before the distance field kept returns read 0.68 % (close)
+# and 1.18 % (beside) here, 0.05 and 0.03 % after.
+LIMIT_TOO_FAR = 0.005
 for path in sys.argv[1:]:
     report = json.load(open(path))
+    # Over the whole city: the share reported more than 10 cm too far (the dangerous direction).
+    scored = sum(b["points"] for b in report["bins"])
+    too_far = sum(b["share_too_far"] * b["points"] for b in report["bins"]) / max(1, scored)
+    if too_far > LIMIT_TOO_FAR:
+        failures.append(f"{path.split('/')[-2]}: {100 * too_far:.2f} % of all points more than "
+                        f"10 cm too far, limit {100 * LIMIT_TOO_FAR} %")
     for b in report["bins"]:
         name = f"{path.split('/')[-2]} {b['lo_m']:.1f}-{b['hi_m']:.1f} m"
         if b["points"] < 500:

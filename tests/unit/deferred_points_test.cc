@@ -63,6 +63,54 @@ TEST(DeferredPointsTest, OneRayPerVoxelAndTheClosestLookWins) {
   EXPECT_EQ(store.Stats().taken, 2);
 }
 
+TEST(DeferredPointsTest, ChangedSubmapsAreReportedOnceAndRestoredStoresCountAsChanged) {
+  Fixture f;
+  DeferredPoints store = f.Make();
+  EXPECT_TRUE(store.TakeChanged().empty());
+  Rays a;
+  a.Add(Vec3f(30.02f, 5.01f, 1.01f), Vec3f(0, 0, 1.7f));  // sub-map (1, 0, 0)
+  a.Add(Vec3f(-5.f, 3.f, 1.f), Vec3f(0, 0, 1.7f));        // sub-map (-1, 0, 0)
+  store.Add(a.p, a.o, Vec3f(0, 0, 1.7f));
+  EXPECT_EQ(store.Changed(), (std::vector<Int3>{Int3(-1, 0, 0), Int3(1, 0, 0)}));
+  EXPECT_EQ(store.TakeChanged(), (std::vector<Int3>{Int3(-1, 0, 0), Int3(1, 0, 0)}));
+  EXPECT_TRUE(store.TakeChanged().empty());
+
+  std::vector<uint32_t> voxels;
+  std::vector<float> rays;
+  store.Rays(Int3(1, 0, 0), &voxels, &rays);
+  ASSERT_EQ(voxels.size(), 1u);
+  EXPECT_EQ(std::vector<float>(rays.begin(), rays.begin() + 3),
+            (std::vector<float>{30.02f, 5.01f, 1.01f}));
+  store.Rays(Int3(5, 5, 0), &voxels, &rays);
+  EXPECT_TRUE(voxels.empty() && rays.empty());
+
+  // A farther look at a kept voxel changes nothing; a closer one replaces the ray.
+  Rays b;
+  b.Add(Vec3f(30.03f, 5.02f, 1.02f), Vec3f(-20, 0, 1.7f));
+  store.Add(b.p, b.o, Vec3f(-20, 0, 1.7f));
+  EXPECT_TRUE(store.TakeChanged().empty());
+  b.p[0] = Vec3f(30.04f, 5.02f, 1.02f);
+  b.o[0] = Vec3f(25, 0, 1.7f);
+  store.Add(b.p, b.o, Vec3f(25, 0, 1.7f));
+  EXPECT_EQ(store.TakeChanged(), std::vector<Int3>{Int3(1, 0, 0)});
+
+  // Taking rays out changes their sub-map; a box that takes none changes nothing.
+  std::vector<Vec3f> p, o;
+  store.TakeInside(Vec3d(100, 100, -2), Vec3d(120, 120, 4), &p, &o);
+  EXPECT_TRUE(store.TakeChanged().empty());
+  store.TakeInside(Vec3d(-10, -10, -2), Vec3d(0, 10, 4), &p, &o);
+  EXPECT_EQ(store.TakeChanged(), std::vector<Int3>{Int3(-1, 0, 0)});
+
+  store.SetChanged({Int3(7, 7, 0)});
+  EXPECT_EQ(store.Changed(), std::vector<Int3>{Int3(7, 7, 0)});
+  ByteWriter w;
+  store.Serialize(&w);
+  DeferredPoints loaded = f.Make();
+  ByteReader r(w.data(), "deferred");
+  ASSERT_TRUE(loaded.Deserialize(&r, 100.f).ok());
+  EXPECT_EQ(loaded.Changed(), std::vector<Int3>{Int3(1, 0, 0)});
+}
+
 TEST(DeferredPointsTest, EndpointsFarAboveOrBelowTheBoxBandAreNotKept) {
   Fixture f;
   DeferredPoints store = f.Make();

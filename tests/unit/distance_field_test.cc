@@ -202,6 +202,105 @@ TEST_F(DistanceFieldTest, SaveLoadIsByteExactAndDamageIsRefused) {
   EXPECT_FALSE(other_radius.Deserialize(&r).ok());
 }
 
+// Returns on a wall x = 12.4 (no surfels there), 0.2 m apart as the deferred store keeps them,
+// each with its normal toward a sensor down the street.
+std::vector<Surfel> Wall(float x0, float y0, float y1, float z0, float z1) {
+  std::vector<Surfel> out;
+  uint32_t voxel = 0;
+  const int ny = int(std::lround((y1 - y0) / 0.2f)), nz = int(std::lround((z1 - z0) / 0.2f));
+  for (int i = 0; i < ny; ++i)
+    for (int j = 0; j < nz; ++j) {
+      Surfel s{{x0, y0 + 0.2f * float(i), z0 + 0.2f * float(j)}, {-0.6f, -0.8f, 0.f}, voxel++};
+      out.push_back(s);
+    }
+  return out;
+}
+
+TEST_F(DistanceFieldTest, ReturnsStandForSurfaceTheSurfelsLack) {
+  field_.SetReturnsBlendRadius(0.1f);
+  field_.Replace(Int3(0, 0, 0), {}, Floor(Int3(0, 0, 0), 0.f, 1.f, 12.f, 1.f, 9.f));
+  const Int3 key(0, 0, 0);
+  field_.ReplaceReturns(key, Wall(12.4f, 1.f, 9.f, 0.1f, 4.1f));
+  EXPECT_EQ(field_.Stats().returns, 40 * 20);
+  // Points in front of the wall, 0.3-1.9 m from it and higher above the floor than that: the wall
+  // is the nearest surface. Points are 0.2 m apart, so a distance is at most sqrt(d^2 + 0.02) - d
+  // too large (0.03 m at 0.3 m), never smaller than the truth, and the gradient is near -x.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> d(0.3f, 1.9f), y(3.f, 7.f);
+  std::vector<float> xyz;
+  std::vector<float> truth;
+  for (int i = 0; i < 500; ++i) {
+    const float t = d(rng);
+    xyz.insert(xyz.end(), {12.4f - t, y(rng), 2.f});
+    truth.push_back(t);
+  }
+  std::vector<float> sdf, grad;
+  std::vector<uint8_t> sat;
+  Query(xyz, &sdf, &grad, &sat);
+  int within_10deg = 0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    EXPECT_EQ(sat[i], 0);
+    EXPECT_GE(std::abs(sdf[i]), truth[i] - 1e-5f);
+    EXPECT_LE(std::abs(sdf[i]), std::sqrt(truth[i] * truth[i] + 0.02f) + 1e-5f);
+    const Vec3f g(&grad[3 * i]);
+    EXPECT_NEAR(g.norm(), 1.f, 1e-4f);
+    // Oriented toward larger values: away from the wall on the side the sdf's sign gives.
+    EXPECT_GT(-g.x() * (sdf[i] < 0 ? -1.f : 1.f), 0.5f);
+    if (std::abs(g.x()) >= std::cos(10.f * float(M_PI) / 180.f)) ++within_10deg;
+  }
+  EXPECT_GE(within_10deg, 400) << "the gradient beside points should blend toward the normal";
+  // Near the floor the floor's disks are nearer and decide, as before.
+  const float low[3] = {11.f, 5.f, 0.2f};
+  float v, g3[3];
+  uint8_t s;
+  field_.Query(low, 1, 2.f, &v, g3, &s);
+  EXPECT_NEAR(v, 0.2f, 1e-5f);
+  EXPECT_NEAR(g3[2], 1.f, 1e-5f);
+
+  // Persistence: byte-exact, and the same answers; damage is refused and changes nothing.
+  ByteWriter w;
+  field_.SerializeReturns(&w);
+  DistanceField loaded(geometry_, kRadius);
+  loaded.SetReturnsBlendRadius(0.1f);
+  {
+    ByteReader r(w.data(), "returns");
+    ASSERT_TRUE(loaded.DeserializeReturns(&r).ok());
+    EXPECT_TRUE(r.ExpectEnd().ok());
+  }
+  ByteWriter again;
+  loaded.SerializeReturns(&again);
+  EXPECT_EQ(again.data(), w.data());
+  const float q[3] = {11.5f, 5.03f, 2.01f};
+  float a1, a2, ga[3], gb[3];
+  field_.Query(q, 1, 2.f, &a1, ga, &s);
+  loaded.Query(q, 1, 2.f, &a2, gb, &s);
+  EXPECT_NEAR(a1, 0.9f, 0.01f);
+  EXPECT_EQ(a1, a2);
+  EXPECT_EQ(std::vector<float>(ga, ga + 3), std::vector<float>(gb, gb + 3));
+  const size_t first = 8 + 12 + 8;  // count, first key, first count
+  for (const auto& [offset, why] : std::vector<std::pair<size_t, const char*>>{
+           {first + 12, "a non-finite normal"}, {first + 4, "a non-finite position"}}) {
+    std::string bad = w.data();
+    const float nan = std::nanf("");
+    std::memcpy(&bad[offset], &nan, 4);
+    ByteReader r(bad, "returns");
+    EXPECT_FALSE(loaded.DeserializeReturns(&r).ok()) << why;
+    EXPECT_EQ(loaded.Stats().returns, 800) << why << ": a refused load changed the field";
+  }
+  {
+    std::string bad = w.data();
+    const uint32_t zero = 0;
+    std::memcpy(&bad[first + 28 + 24], &zero, 4);  // the second return's voxel, out of order
+    ByteReader r(bad, "returns");
+    EXPECT_FALSE(loaded.DeserializeReturns(&r).ok());
+    ByteReader t(w.data().substr(0, w.data().size() / 2), "returns");
+    EXPECT_FALSE(loaded.DeserializeReturns(&t).ok());
+  }
+  // Replacing with none removes them.
+  field_.ReplaceReturns(key, {});
+  EXPECT_EQ(field_.Stats().returns, 0);
+}
+
 TEST(QueryConfigTest, BadMaxDistanceIsRefusedByName) {
   for (const char* bad :
        {"query.max_distance_m=0", "query.max_distance_m=-1", "query.max_distance_m=nan",

@@ -283,6 +283,75 @@ TEST(MapperDeferredTest, SurfacesSeenFromOutsideTheBoxEnterTheMapWhenItArrives) 
   EXPECT_GT(fraction[1], 0.8) << "deferred rays did not reach the map";
 }
 
+// A wall beside the drive, 0.6 m beyond the side of the ±2 m box: no box ever covers it, so the
+// network never learns it; its returns wait in the deferred store for good.
+AnalyticScene WallBeside() {
+  AnalyticScene scene;
+  scene.boxes.push_back({Eigen::Vector3f(-3.f, 2.6f, -0.5f), Eigen::Vector3f(9.f, 3.f, 3.f)});
+  return scene;
+}
+
+TEST(MapperDistanceTest, AWallNoBoxReachedIsInTheDistancesThroughItsReturns) {
+  const std::string dir = ::testing::TempDir() + "/rim_mapper_returns_save";
+  std::filesystem::remove_all(dir);
+  const AnalyticScene scene = WallBeside();
+  // Points inside the box's side strip, 1.2-1.6 m above the ground and 0.7-1.0 m from the wall:
+  // the wall is their nearest surface.
+  std::vector<float> xyz;
+  for (float x = 1.f; x <= 4.f; x += 0.25f)
+    for (float y = 1.6f; y <= 1.91f; y += 0.1f)
+      for (float z = 1.2f; z <= 1.61f; z += 0.2f) xyz.insert(xyz.end(), {x, y, z});
+  std::unique_ptr<Mapper> kept;
+  for (bool enabled : {false, true}) {
+    auto mapper =
+        Mapper::Create(SmallConfig({"query.refresh_frames=2", "deferred.voxel_m=0.1",
+                                    std::string("deferred.enabled=") + (enabled ? "1" : "0")}));
+    ASSERT_TRUE(mapper.ok());
+    for (float x = 0.f; x <= 5.f; x += 0.5f)
+      ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, x, uint32_t(50 + 2 * x), 32)).ok());
+    (*mapper)->RefreshDistanceField();
+    QueryResult q;
+    ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, true, &q).ok());
+    int observed = 0, right = 0;
+    for (size_t i = 0; i < q.sdf.size(); ++i) {
+      if (!q.observed[i]) continue;
+      ++observed;
+      const float truth = scene.Sdf(Eigen::Vector3f(&xyz[3 * i]));
+      const Eigen::Vector3f g(&q.gradient[3 * i]);
+      right += std::abs(q.sdf[i] - truth) < 0.04f && g.y() < -0.95f;
+    }
+    ASSERT_GT(observed, int(q.sdf.size()) / 2) << "rays did not cross the strip";
+    if (!enabled) {
+      EXPECT_EQ((*mapper)->Stats().distance_returns, 0);
+      EXPECT_LT(right, observed / 10) << "the wall was in the distances without its returns";
+      continue;
+    }
+    EXPECT_GT((*mapper)->Stats().distance_returns, 100);
+    EXPECT_GT(right, observed * 9 / 10)
+        << "of " << observed << " points, " << right << " read the wall's distance and normal";
+    kept = std::move(*mapper);
+  }
+  // One more frame changes the deferred store after the last refresh: a restored map answers as
+  // this one does, and both rebuild the same returns at their next refresh.
+  ASSERT_TRUE(kept->IntegrateScan(ScanAt(scene, 5.5f, 61, 32)).ok());
+  ASSERT_TRUE(kept->Save(dir).ok());
+  auto loaded = Mapper::Load(dir);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ((*loaded)->Stats().distance_returns, kept->Stats().distance_returns);
+  QueryResult a, b;
+  ASSERT_TRUE(kept->QuerySdf(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*loaded)->QuerySdf(xyz.data(), xyz.size() / 3, true, &b).ok());
+  EXPECT_EQ(a.sdf, b.sdf);
+  EXPECT_EQ(a.gradient, b.gradient);
+  kept->RefreshDistanceField();
+  (*loaded)->RefreshDistanceField();
+  EXPECT_EQ((*loaded)->Stats().distance_returns, kept->Stats().distance_returns);
+  ASSERT_TRUE(kept->QuerySdf(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*loaded)->QuerySdf(xyz.data(), xyz.size() / 3, true, &b).ok());
+  EXPECT_EQ(a.sdf, b.sdf);
+  EXPECT_EQ(a.gradient, b.gradient);
+}
+
 TEST(MapperDistanceTest, ACallerThatKeepsTheScheduleIsToldWhenARefreshIsDueAndOverdue) {
   const AnalyticScene scene = SmallScene();
   auto mapper = Mapper::Create(SmallConfig({"query.refresh_frames=3"}));

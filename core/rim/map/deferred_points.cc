@@ -57,10 +57,12 @@ void DeferredPoints::Add(const std::vector<Vec3f>& points_W, const std::vector<V
     if (inserted) {
       ++size_;
       ++added_;
+      changed_.insert(key);
       if (table->size() == size_t(max_per_submap_) + 1) grown.push_back(key);
     } else if (ray.range2() < it->second.range2()) {
       it->second = ray;
       ++added_;
+      changed_.insert(key);
     }
   }
   for (const Int3& key : grown) {
@@ -119,6 +121,7 @@ void DeferredPoints::TakeInside(const Vec3d& min_m, const Vec3d& max_m,
         }
         size_ -= taken.size();
         taken_ += int64_t(taken.size());
+        if (!taken.empty()) changed_.insert(Int3(x, y, z));
         if (table.empty()) submaps_.erase(sub);
       }
 }
@@ -148,22 +151,55 @@ void DeferredPoints::Serialize(ByteWriter* w) const {
   w->U64(uint64_t(evicted_));
   w->U64(uint64_t(taken_));
   w->U32(uint32_t(keys.size()));
+  std::vector<uint32_t> voxels;
+  std::vector<float> rays;
   for (const Int3& key : keys) {
-    const Table& table = submaps_.at(key);
-    std::vector<uint32_t> voxels;
-    voxels.reserve(table.size());
-    for (const auto& [voxel, ray] : table) voxels.push_back(voxel);
-    std::sort(voxels.begin(), voxels.end());
-    std::vector<float> rays;
-    rays.reserve(6 * voxels.size());
-    for (uint32_t v : voxels) {
-      const Ray& r = table.at(v);
-      rays.insert(rays.end(), {r.p[0], r.p[1], r.p[2], r.o[0], r.o[1], r.o[2]});
-    }
+    Rays(key, &voxels, &rays);
     for (int a = 0; a < 3; ++a) w->I32(key[a]);
     w->PodVector(voxels);
     w->PodVector(rays);
   }
+}
+
+void DeferredPoints::Rays(const Int3& key, std::vector<uint32_t>* voxels,
+                          std::vector<float>* rays) const {
+  voxels->clear();
+  rays->clear();
+  auto it = submaps_.find(key);
+  if (it == submaps_.end()) return;
+  const Table& table = it->second;
+  voxels->reserve(table.size());
+  for (const auto& [voxel, ray] : table) voxels->push_back(voxel);
+  std::sort(voxels->begin(), voxels->end());
+  rays->reserve(6 * voxels->size());
+  for (uint32_t v : *voxels) {
+    const Ray& r = table.at(v);
+    rays->insert(rays->end(), {r.p[0], r.p[1], r.p[2], r.o[0], r.o[1], r.o[2]});
+  }
+}
+
+namespace {
+std::vector<Int3> Sorted(std::vector<Int3> keys) {
+  std::sort(keys.begin(), keys.end(), [](const Int3& a, const Int3& b) {
+    return std::tie(a.x(), a.y(), a.z()) < std::tie(b.x(), b.y(), b.z());
+  });
+  return keys;
+}
+}  // namespace
+
+std::vector<Int3> DeferredPoints::Changed() const {
+  return Sorted(std::vector<Int3>(changed_.begin(), changed_.end()));
+}
+
+std::vector<Int3> DeferredPoints::TakeChanged() {
+  std::vector<Int3> keys = Changed();
+  changed_.clear();
+  return keys;
+}
+
+void DeferredPoints::SetChanged(const std::vector<Int3>& keys) {
+  changed_.clear();
+  changed_.insert(keys.begin(), keys.end());
 }
 
 absl::Status DeferredPoints::Deserialize(ByteReader* r, float max_range_m) {
@@ -211,6 +247,8 @@ absl::Status DeferredPoints::Deserialize(ByteReader* r, float max_range_m) {
     size += voxels.size();
   }
   submaps_ = std::move(submaps);
+  changed_.clear();
+  for (const auto& [key, table] : submaps_) changed_.insert(key);
   size_ = size;
   added_ = int64_t(added);
   evicted_ = int64_t(evicted);

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "rim/base/binary_io.h"
 #include "rim/base/types.h"
@@ -59,6 +60,17 @@ class DeferredPoints {
   size_t size() const { return size_; }
   DeferredStats Stats() const;
 
+  // The rays of sub-map `key` (keys as Locate files them: floor(endpoint / sub-map extent)),
+  // sorted by voxel: voxels[i] and rays[6i..6i+5] = endpoint xyz, origin xyz.
+  void Rays(const Int3& key, std::vector<uint32_t>* voxels, std::vector<float>* rays) const;
+  // Sub-maps whose rays changed (added, replaced, evicted or taken) since the last TakeChanged,
+  // sorted; the distance field rebuilds its returns there (docs/core.md, "Metric distances").
+  std::vector<Int3> TakeChanged();
+  std::vector<Int3> Changed() const;
+  // Sets which sub-maps count as changed (a restored distance field's pending ones). A store
+  // that Deserialize fills counts every sub-map it holds as changed.
+  void SetChanged(const std::vector<Int3>& keys);
+
   // The rays and the counters. Deserialize checks every ray (finite, no longer than
   // `max_range_m`, in the sub-map and voxel it is filed under) and replaces the contents only
   // when all of it is valid.
@@ -87,6 +99,7 @@ class DeferredPoints {
   int max_per_submap_;
   bool enabled_;
   absl::flat_hash_map<Int3, Table, Int3Hash, Int3Equal> submaps_;
+  absl::flat_hash_set<Int3, Int3Hash, Int3Equal> changed_;
   size_t size_ = 0;
   int64_t added_ = 0, evicted_ = 0, taken_ = 0;
 };

@@ -82,12 +82,13 @@ struct NearestDisk {
   const Surfel* surfels;
   const float* q;
   float r;
+  float rb;  // blend radius (BlendWidth's): r for surfels, larger for returns
   float best;
   int64_t index = -1;
   int kept = 0;
   std::array<std::pair<float, uint32_t>, kKeep> near{};
   // Disks at or beyond this distance matter neither for the value nor for the gradient.
-  float Limit() const { return best + BlendWidth(best, r); }
+  float Limit() const { return best + BlendWidth(best, rb); }
   float worstDist() const {
     const float w = Limit() + r;
     return w * w;
@@ -133,8 +134,10 @@ float BoxDistance2(const float* q, const Vec3f& lo, const Vec3f& hi) {
 }  // namespace
 
 struct DistanceField::Part {
-  explicit Part(std::vector<Surfel> s)
-      : surfels(std::move(s)),
+  Part(std::vector<Surfel> s, float r, float rb)
+      : radius(r),
+        blend(rb),
+        surfels(std::move(s)),
         adaptor{&surfels},
         tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(kMaxLeaf)) {
     lo.setConstant(std::numeric_limits<float>::max());
@@ -144,11 +147,47 @@ struct DistanceField::Part {
         lo[a] = std::min(lo[a], x.p[a]);
         hi[a] = std::max(hi[a], x.p[a]);
       }
+    if (radius == 0.f && !surfels.empty()) BuildNear();
   }
+
+  // Points (returns) spread over a whole sub-map, so that their bounds do not tell a query
+  // point in the street from one beside a facade. A grid of kNearCell cells over the bounds
+  // marks the cells with a point in them or in a neighbouring cell: a query point whose cell is
+  // unmarked has no point within kNearCell, and a search bounded by that can skip the tree.
+  static constexpr float kNearCell = 0.5f;
+  void BuildNear() {
+    for (int a = 0; a < 3; ++a) dims[a] = int((hi[a] - lo[a]) / kNearCell) + 1;
+    near.assign(size_t(dims.x()) * size_t(dims.y()) * size_t(dims.z()), 0);
+    auto at = [&](int x, int y, int z) { return (size_t(x) * dims.y() + y) * dims.z() + z; };
+    for (const Surfel& x : surfels) {
+      Int3 c;
+      for (int a = 0; a < 3; ++a)
+        c[a] = std::min(dims[a] - 1, int((x.p[a] - lo[a]) * (1.f / kNearCell)));
+      for (int dx = std::max(0, c.x() - 1); dx <= std::min(dims.x() - 1, c.x() + 1); ++dx)
+        for (int dy = std::max(0, c.y() - 1); dy <= std::min(dims.y() - 1, c.y() + 1); ++dy)
+          for (int dz = std::max(0, c.z() - 1); dz <= std::min(dims.z() - 1, c.z() + 1); ++dz)
+            near[at(dx, dy, dz)] = 1;
+    }
+  }
+  // False only when no point lies within kNearCell of q.
+  bool MaybeNear(const float* q) const {
+    Int3 c;
+    for (int a = 0; a < 3; ++a) {
+      const float t = (q[a] - lo[a]) * (1.f / kNearCell);
+      if (!(t >= 0.f) || t >= float(dims[a])) return true;  // outside: the bounds decide
+      c[a] = int(t);
+    }
+    return near[(size_t(c.x()) * dims.y() + c.y()) * dims.z() + c.z()] != 0;
+  }
+
+  float radius;  // of the disks (0: points)
+  float blend;   // the radius BlendWidth takes for the gradient beside them
   std::vector<Surfel> surfels;
   SurfelAdaptor adaptor;
   Tree tree;
   Vec3f lo, hi;  // bounds of the surfel centres
+  Int3 dims = Int3::Zero();
+  std::vector<uint8_t> near;  // returns only: see BuildNear
 };
 
 DistanceField::DistanceField(const MapGeometry& geometry, float surfel_radius_m)
@@ -171,8 +210,9 @@ Int3 DistanceField::VoxelOf(const Int3& key, uint32_t index) const {
   return key.cwiseProduct(c) + Int3(x, y, z);
 }
 
-DistanceField::PartPtr DistanceField::MakePart(std::vector<Surfel> surfels) {
-  return std::make_shared<const Part>(std::move(surfels));
+DistanceField::PartPtr DistanceField::MakePart(std::vector<Surfel> surfels, float radius,
+                                               float blend_radius) {
+  return std::make_shared<const Part>(std::move(surfels), radius, blend_radius);
 }
 
 void DistanceField::FitNormals(const Int3& key, std::vector<Surfel>* surfels) const {
@@ -246,12 +286,21 @@ void DistanceField::Replace(const Int3& key, const std::vector<IntBox>& regions,
     return (a.voxel & ~kFresh) < (b.voxel & ~kFresh);
   });
   FitNormals(key, &fresh);
-  PartPtr part = fresh.empty() ? nullptr : MakePart(std::move(fresh));
+  PartPtr part = fresh.empty() ? nullptr : MakePart(std::move(fresh), radius_, radius_);
   std::unique_lock<std::shared_mutex> lock(mu_);
   if (part)
     parts_[key] = std::move(part);
   else
     parts_.erase(key);
+}
+
+void DistanceField::ReplaceReturns(const Int3& key, std::vector<Surfel> returns) {
+  PartPtr part = returns.empty() ? nullptr : MakePart(std::move(returns), 0.f, returns_blend_);
+  std::unique_lock<std::shared_mutex> lock(mu_);
+  if (part)
+    returns_[key] = std::move(part);
+  else
+    returns_.erase(key);
 }
 
 std::shared_ptr<const std::vector<Surfel>> DistanceField::Surfels(const Int3& key) const {
@@ -264,6 +313,7 @@ std::shared_ptr<const std::vector<Surfel>> DistanceField::Surfels(const Int3& ke
 void DistanceField::Clear() {
   std::unique_lock<std::shared_mutex> lock(mu_);
   parts_.clear();
+  returns_.clear();
 }
 
 void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, float* sdf,
@@ -276,18 +326,25 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
       lo[a] = std::min(lo[a], xyz[3 * i + a]);
       hi[a] = std::max(hi[a], xyz[3 * i + a]);
     }
+  // Returns are points (radius 0 <= radius_), so the surfels' radius bounds every part's reach.
   const float reach = max_distance_m + radius_;
   std::vector<PartPtr> parts;
   {
     std::shared_lock<std::shared_mutex> lock(mu_);
-    for (const auto& [key, part] : parts_) {
-      bool apart = false;
-      for (int a = 0; a < 3; ++a)
-        apart = apart || part->lo[a] > hi[a] + reach || part->hi[a] < lo[a] - reach;
-      if (!apart) parts.push_back(part);
-    }
+    for (const auto* set : {&parts_, &returns_})
+      for (const auto& [key, part] : *set) {
+        bool apart = false;
+        for (int a = 0; a < 3; ++a)
+          apart = apart || part->lo[a] > hi[a] + reach || part->hi[a] < lo[a] - reach;
+        if (!apart) parts.push_back(part);
+      }
   }
-  std::vector<std::pair<float, const Part*>> order(parts.size());
+  struct Order {
+    float d2;  // squared distance to the part's bounds
+    int rank;  // 0: returns within Part::kNearCell of q, 1: surfels, 2: other returns
+    const Part* part;
+  };
+  std::vector<Order> order(parts.size());
   // Points in a spatially coherent order (by 0.5 m cell), each search seeded with its distance to
   // the previous point's nearest disk: a bound that prunes the trees from the start, where a
   // search from the bound alone first wanders through every disk within max_distance_m. The
@@ -302,39 +359,60 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
   }
   std::sort(visit.begin(), visit.end());
   const Surfel* previous = nullptr;
+  const Part* previous_part = nullptr;
+  struct Near {
+    float d;
+    const Surfel* surfel;
+    const Part* part;
+  };
   for (const auto& [cell, index] : visit) {
     const size_t i = index;
     const float* q = xyz + 3 * i;
     size_t m = 0;
     for (const PartPtr& p : parts) {
       const float d2 = BoxDistance2(q, p->lo, p->hi);
-      if (d2 < reach * reach) order[m++] = {d2, p.get()};
+      if (d2 >= reach * reach) continue;
+      const int rank = p->radius != 0.f ? 1 : p->MaybeNear(q) ? 0 : 2;
+      order[m++] = {d2, rank, p.get()};
     }
-    std::sort(order.begin(), order.begin() + m,
-              [](const auto& a, const auto& b) { return a.first < b.first; });
+    // Returns right beside q first: their distance then bounds the surfels' searches, which
+    // from a loose bound wander through every disk within it. Then the surfels, nearest parts
+    // first; then the other returns, which a bound under Part::kNearCell rules out unsearched.
+    // The answer does not depend on the order.
+    std::sort(order.begin(), order.begin() + m, [](const Order& a, const Order& b) {
+      return a.rank != b.rank ? a.rank < b.rank : a.d2 < b.d2;
+    });
     float best = max_distance_m;
     const Surfel* nearest = nullptr;
+    const Part* nearest_part = nullptr;
     if (previous) {
-      const float d = DiskDistance(*previous, q, radius_);
-      if (d < best) best = d, nearest = previous;
+      const float d = DiskDistance(*previous, q, previous_part->radius);
+      if (d < best) best = d, nearest = previous, nearest_part = previous_part;
     }
     // Disks within kBlend of the nearest, over every part searched.
-    std::array<std::pair<float, const Surfel*>, 2 * NearestDisk::kKeep> near;
+    std::array<Near, 2 * NearestDisk::kKeep> near;
     int kept = 0;
     for (size_t k = 0; k < m; ++k) {
-      const float bound = best + BlendWidth(best, radius_) + radius_;
-      if (order[k].first >= bound * bound) break;
-      const Part& part = *order[k].second;
-      NearestDisk search{part.surfels.data(), q, radius_, best};
+      const Part& part = *order[k].part;
+      const int rank = order[k].rank;
+      const float bound = best + BlendWidth(best, part.blend) + part.radius;
+      if (order[k].d2 >= bound * bound) {  // the rest of this rank lies farther still
+        while (k + 1 < m && order[k + 1].rank == rank) ++k;
+        continue;
+      }
+      if (rank == 2 && bound <= Part::kNearCell) continue;
+      NearestDisk search{part.surfels.data(), q, part.radius, part.blend, best};
       part.tree.findNeighbors(search, q, nanoflann::SearchParams());
       if (search.index >= 0) {
         best = search.best;
         nearest = &part.surfels[size_t(search.index)];
+        nearest_part = &part;
       }
       for (int j = 0; j < search.kept && kept < int(near.size()); ++j)
-        near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second]};
+        near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second], &part};
     }
     previous = nearest;
+    previous_part = nearest_part;
     float* g = gradient ? gradient + 3 * i : nullptr;
     if (!nearest) {
       sdf[i] = max_distance_m;
@@ -344,7 +422,7 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     }
     float d = 0, sign = 1;
     bool on_face = false;
-    const Vec3f away = AwayFrom(*nearest, q, radius_, &d, &sign, &on_face);
+    const Vec3f away = AwayFrom(*nearest, q, nearest_part->radius, &d, &sign, &on_face);
     sdf[i] = sign * std::min(d, max_distance_m);
     if (saturated) saturated[i] = 0;
     if (!g) continue;
@@ -360,15 +438,15 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     // plane and its direction would tilt the normal; and far out no wider than reaches disks
     // about 2.5 radii to the side (a width w at distance d reaches sqrt(2 d w)), which spans
     // the gaps between disks without a lopsided crowd of them.
-    const float blend = BlendWidth(best, radius_);
+    const float blend = BlendWidth(best, nearest_part->blend);
     Vec3f sum = Vec3f::Zero();
     bool covered = false;
     for (int j = 0; j < kept && !covered; ++j) {
-      const float w = blend > 0.f ? 1.f - (near[j].first - best) / blend : 0.f;
+      const float w = blend > 0.f ? 1.f - (near[j].d - best) / blend : 0.f;
       if (w <= 0.f) continue;
       float dj, sj;
       bool face_j = false;
-      const Vec3f away_j = AwayFrom(*near[j].second, q, radius_, &dj, &sj, &face_j);
+      const Vec3f away_j = AwayFrom(*near[j].surfel, q, near[j].part->radius, &dj, &sj, &face_j);
       // A disk over q that lost to a rim by float rounding: q is over a face after all.
       if (face_j)
         sum = away_j, covered = true;
@@ -383,11 +461,18 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
 DistanceFieldStats DistanceField::Stats() const {
   std::shared_lock<std::shared_mutex> lock(mu_);
   DistanceFieldStats st;
+  auto bytes = [](const Part& part) {
+    return int64_t(part.surfels.capacity() * sizeof(Surfel) +
+                   const_cast<Tree&>(part.tree).usedMemory(const_cast<Tree&>(part.tree)));
+  };
   for (const auto& [key, part] : parts_) {
     st.surfels += int64_t(part->surfels.size());
-    st.bytes += int64_t(part->surfels.capacity() * sizeof(Surfel) +
-                        const_cast<Tree&>(part->tree).usedMemory(const_cast<Tree&>(part->tree)));
+    st.bytes += bytes(*part);
     ++st.submaps;
+  }
+  for (const auto& [key, part] : returns_) {
+    st.returns += int64_t(part->surfels.size());
+    st.bytes += bytes(*part);
   }
   return st;
 }
@@ -439,10 +524,51 @@ absl::Status DistanceField::Deserialize(ByteReader* r) {
                                                 key.y(), ",", key.z(), ") is out of order, ",
                                                 "outside its voxel or not finite"));
     }
-    if (!surfels.empty()) parts[key] = MakePart(std::move(surfels));
+    if (!surfels.empty()) parts[key] = MakePart(std::move(surfels), radius_, radius_);
   }
   std::unique_lock<std::shared_mutex> lock(mu_);
   parts_ = std::move(parts);
+  return absl::OkStatus();
+}
+
+void DistanceField::SerializeReturns(ByteWriter* w) const {
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  w->U64(returns_.size());
+  for (const auto& [key, part] : returns_) {
+    for (int a = 0; a < 3; ++a) w->I32(key[a]);
+    w->PodVector(part->surfels);
+  }
+}
+
+absl::Status DistanceField::DeserializeReturns(ByteReader* r) {
+  uint64_t count;
+  RIM_RETURN_IF_ERROR(r->U64(&count));
+  if (count > r->remaining() / 20)
+    return absl::DataLossError(absl::StrCat(count, " sub-maps of returns do not fit in the file"));
+  std::map<Int3, PartPtr, KeyLess> parts;
+  for (uint64_t k = 0; k < count; ++k) {
+    Int3 key;
+    for (int a = 0; a < 3; ++a) RIM_RETURN_IF_ERROR(r->I32(&key[a]));
+    if ((key.cwiseAbs().array() > (1 << 20)).any() || parts.count(key))
+      return absl::DataLossError(
+          absl::StrCat("returns of sub-map ", k, " have a bad or repeated key"));
+    std::vector<Surfel> returns;
+    RIM_RETURN_IF_ERROR(r->PodVector(&returns));
+    for (size_t i = 0; i < returns.size(); ++i) {
+      const Surfel& s = returns[i];
+      const float n2 = Dot(s.n, s.n);
+      bool ok = (i == 0 || returns[i - 1].voxel < s.voxel) && std::isfinite(n2) &&
+                std::abs(n2 - 1.f) < 1e-3f;
+      for (int a = 0; a < 3; ++a) ok = ok && std::isfinite(s.p[a]);
+      if (!ok)
+        return absl::DataLossError(absl::StrCat("return ", i, " of sub-map (", key.x(), ",",
+                                                key.y(), ",", key.z(),
+                                                ") is out of order or not finite"));
+    }
+    if (!returns.empty()) parts[key] = MakePart(std::move(returns), 0.f, returns_blend_);
+  }
+  std::unique_lock<std::shared_mutex> lock(mu_);
+  returns_ = std::move(parts);
   return absl::OkStatus();
 }
 

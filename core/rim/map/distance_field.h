@@ -35,7 +35,8 @@ struct Surfel {
 
 struct DistanceFieldStats {
   int64_t surfels = 0;
-  int64_t bytes = 0;  // surfels and their k-d trees
+  int64_t returns = 0;  // deferred returns standing in for surface the network has not learnt
+  int64_t bytes = 0;    // surfels and their k-d trees
   int submaps = 0;
 };
 
@@ -54,6 +55,15 @@ class DistanceField {
   // boxes; empty: all of them) and adds `fresh`, whose voxels must lie there too.
   void Replace(const Int3& key, const std::vector<IntBox>& regions, std::vector<Surfel> fresh);
   void Clear();
+
+  // Surface the network has not learnt: returns seen outside every box so far (the deferred
+  // store's rays, deferred_points.h), such as a facade beside the street that no box reached.
+  // Each is a point (a disk of radius 0) whose `n` points toward the sensor that saw it; its
+  // gradient blends like a disk of `returns_blend_radius_m`. Replaces sub-map `key`'s previous
+  // returns (keys as the deferred store files them); `returns` must be sorted by `voxel`.
+  void ReplaceReturns(const Int3& key, std::vector<Surfel> returns);
+  void SetReturnsBlendRadius(float radius_m) { returns_blend_ = radius_m; }
+
   // The surfels of sub-map `key` as they stand, sorted by voxel index (null when it has none);
   // immutable, so a caller may read them while the field is replaced.
   std::shared_ptr<const std::vector<Surfel>> Surfels(const Int3& key) const;
@@ -73,6 +83,9 @@ class DistanceField {
   void Serialize(ByteWriter* w) const;
   // Refuses (DATA_LOSS-worthy message, field unchanged) counts, voxels or values that do not fit.
   absl::Status Deserialize(ByteReader* r);
+  // The returns, likewise (a section of their own, which older files lack).
+  void SerializeReturns(ByteWriter* w) const;
+  absl::Status DeserializeReturns(ByteReader* r);
 
  private:
   struct Part;
@@ -82,7 +95,7 @@ class DistanceField {
       return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
     }
   };
-  static PartPtr MakePart(std::vector<Surfel> surfels);
+  static PartPtr MakePart(std::vector<Surfel> surfels, float radius, float blend_radius);
   // Set in a surfel's voxel index until its normal is fitted (indices stay below 2^31).
   static constexpr uint32_t kFresh = 0x80000000u;
   // Refits the normals of the marked surfels of a sorted sub-map, and clears the marks.
@@ -90,8 +103,10 @@ class DistanceField {
 
   const MapGeometry& geometry_;
   const float radius_;
-  mutable std::shared_mutex mu_;  // guards parts_ (the map of pointers, not the parts)
+  float returns_blend_ = 0.f;
+  mutable std::shared_mutex mu_;  // guards parts_ and returns_ (the maps, not the parts)
   std::map<Int3, PartPtr, KeyLess> parts_;
+  std::map<Int3, PartPtr, KeyLess> returns_;
 };
 
 }  // namespace rim
