@@ -378,7 +378,8 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     // Returns right beside q first: their distance then bounds the surfels' searches, which
     // from a loose bound wander through every disk within it. Then the surfels, nearest parts
     // first; then the other returns, which a bound under Part::kNearCell rules out unsearched.
-    // The answer does not depend on the order.
+    // The distance does not depend on the order; the gradient's blend can, by a disk or two,
+    // where a search keeps its most (NearestDisk::kKeep) disks.
     std::sort(order.begin(), order.begin() + m, [](const Order& a, const Order& b) {
       return a.rank != b.rank ? a.rank < b.rank : a.d2 < b.d2;
     });
@@ -477,14 +478,18 @@ DistanceFieldStats DistanceField::Stats() const {
   return st;
 }
 
-void DistanceField::Serialize(ByteWriter* w) const {
-  std::shared_lock<std::shared_mutex> lock(mu_);
-  w->F32(radius_);
-  w->U64(parts_.size());
-  for (const auto& [key, part] : parts_) {
+void DistanceField::WriteParts(const std::map<Int3, PartPtr, KeyLess>& parts, ByteWriter* w) {
+  w->U64(parts.size());
+  for (const auto& [key, part] : parts) {
     for (int a = 0; a < 3; ++a) w->I32(key[a]);
     w->PodVector(part->surfels);
   }
+}
+
+void DistanceField::Serialize(ByteWriter* w) const {
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  w->F32(radius_);
+  WriteParts(parts_, w);
 }
 
 absl::Status DistanceField::Deserialize(ByteReader* r) {
@@ -533,11 +538,7 @@ absl::Status DistanceField::Deserialize(ByteReader* r) {
 
 void DistanceField::SerializeReturns(ByteWriter* w) const {
   std::shared_lock<std::shared_mutex> lock(mu_);
-  w->U64(returns_.size());
-  for (const auto& [key, part] : returns_) {
-    for (int a = 0; a < 3; ++a) w->I32(key[a]);
-    w->PodVector(part->surfels);
-  }
+  WriteParts(returns_, w);
 }
 
 absl::Status DistanceField::DeserializeReturns(ByteReader* r) {

@@ -96,6 +96,8 @@ class DistanceField {
     }
   };
   static PartPtr MakePart(std::vector<Surfel> surfels, float radius, float blend_radius);
+  // Writes a count, then each part's key and surfels (the caller holds mu_).
+  static void WriteParts(const std::map<Int3, PartPtr, KeyLess>& parts, ByteWriter* w);
   // Set in a surfel's voxel index until its normal is fitted (indices stay below 2^31).
   static constexpr uint32_t kFresh = 0x80000000u;
   // Refits the normals of the marked surfels of a sorted sub-map, and clears the marks.
