@@ -332,34 +332,40 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
   out->map_version = map_version_.load();
   const double inv_s = 1.0 / geometry_->leaf_m();
   ForChunks(n, config_.train.threads, [&](size_t begin, size_t m) {
-    // Distances come from the field's own snapshots; the map itself (observed flags, the
-    // network's side inside surface bands) is read under the shared lock one chunk at a time,
-    // so that training waits for at most one chunk of a large batch, not the whole of it.
-    distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
-                     want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin]);
-    std::shared_lock lock(mu_);
-    saver_->Flush();  // under the lock, as in QueryNeural
-    FeatureReader reader(*local_map_, *store_);
-    for (size_t i = begin; i < begin + m; ++i) {
-      const float* q = xyz + 3 * i;
-      const Int3 g0(int(std::floor(q[0] * inv_s)), int(std::floor(q[1] * inv_s)),
-                    int(std::floor(q[2] * inv_s)));
-      out->observed[i] = ObservedCode(reader.ObservedBits(g0));
-    }
+    // The map itself (observed flags, the network's side inside surface bands) is read under
+    // the shared lock one chunk at a time, so that training waits for at most one chunk of a
+    // large batch, not the whole of it; the distances then come from the field's own snapshots,
+    // outside the lock.
     // The sign. The side of the nearest disk's plane is wrong past a convex edge (the disk's
     // plane runs on beyond it) and before a stray surfel. A voxel that rays crossed, away from
     // any surface band, is free space; inside a surface band the network, trained there, knows
     // the side; elsewhere (never observed) the disk decides.
     std::vector<size_t> band;
-    std::vector<float> band_xyz;
-    for (size_t i = begin; i < begin + m; ++i) {
-      if (out->observed[i] & QueryResult::kObservedSurface) {
-        band.push_back(i);
-        band_xyz.insert(band_xyz.end(), xyz + 3 * i, xyz + 3 * i + 3);
+    std::vector<float> band_xyz, band_sdf;
+    {
+      std::shared_lock lock(mu_);
+      saver_->Flush();  // under the lock, as in QueryNeural
+      FeatureReader reader(*local_map_, *store_);
+      for (size_t i = begin; i < begin + m; ++i) {
+        const float* q = xyz + 3 * i;
+        const Int3 g0(int(std::floor(q[0] * inv_s)), int(std::floor(q[1] * inv_s)),
+                      int(std::floor(q[2] * inv_s)));
+        out->observed[i] = ObservedCode(reader.ObservedBits(g0));
+        if (out->observed[i] & QueryResult::kObservedSurface) {
+          band.push_back(i);
+          band_xyz.insert(band_xyz.end(), q, q + 3);
+        }
       }
+      band_sdf.resize(band.size());
+      if (!band.empty())
+        EvalNeural(band_xyz.data(), band.size(), band_sdf.data(), nullptr, nullptr);
     }
-    std::vector<float> band_sdf(band.size());
-    if (!band.empty()) EvalNeural(band_xyz.data(), band.size(), band_sdf.data(), nullptr, nullptr);
+    // Returns count at observed points only: elsewhere a planner must treat the place as
+    // unknown whatever it reads, and the surfels' distance there costs no more than before
+    // returns were kept (half the points of a batch spread over the map lie out there).
+    distance_->Query(xyz + 3 * begin, m, config_.query.max_distance_m, &out->sdf[begin],
+                     want_gradient ? &out->gradient[3 * begin] : nullptr, &out->saturated[begin],
+                     &out->observed[begin]);
     // The gradient turns too, except within a couple of centimetres of the surface: there the
     // two disagree because the network's zero level and the disks' planes lie millimetres apart,
     // and the gradient of a signed distance at its surface is the normal on either side.

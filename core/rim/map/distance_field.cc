@@ -317,7 +317,7 @@ void DistanceField::Clear() {
 }
 
 void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, float* sdf,
-                          float* gradient, uint8_t* saturated) const {
+                          float* gradient, uint8_t* saturated, const uint8_t* with_returns) const {
   if (n == 0) return;
   // The parts that can hold a surface within reach of some point of the batch.
   Vec3f lo = Vec3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
@@ -368,8 +368,10 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
   for (const auto& [cell, index] : visit) {
     const size_t i = index;
     const float* q = xyz + 3 * i;
+    const bool returns = !with_returns || with_returns[i];
     size_t m = 0;
     for (const PartPtr& p : parts) {
+      if (!returns && p->radius == 0.f) continue;
       const float d2 = BoxDistance2(q, p->lo, p->hi);
       if (d2 >= reach * reach) continue;
       const int rank = p->radius != 0.f ? 1 : p->MaybeNear(q) ? 0 : 2;
@@ -386,7 +388,7 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     float best = max_distance_m;
     const Surfel* nearest = nullptr;
     const Part* nearest_part = nullptr;
-    if (previous) {
+    if (previous && (returns || previous_part->radius != 0.f)) {
       const float d = DiskDistance(*previous, q, previous_part->radius);
       if (d < best) best = d, nearest = previous, nearest_part = previous_part;
     }

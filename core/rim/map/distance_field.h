@@ -74,8 +74,9 @@ class DistanceField {
   //   sign's orientation; zero when saturated.
   // - saturated[i] (may be null): 1 when no surface lies within max_distance_m; sdf is then
   //   +max_distance_m.
+  // - with_returns (may be null: every point): 0 for a point that reads the surfels alone.
   void Query(const float* xyz, size_t n, float max_distance_m, float* sdf, float* gradient,
-             uint8_t* saturated) const;
+             uint8_t* saturated, const uint8_t* with_returns = nullptr) const;
 
   DistanceFieldStats Stats() const;
 
