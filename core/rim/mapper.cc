@@ -191,9 +191,16 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   IterationTiming it;
   double loss_sum = 0;
   for (int i = 0; i < n_iter; ++i) {
-    // One exclusive section per iteration: readers wait at most one iteration (§3.5).
+    // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
+    // and takes it alone only to write. Nothing else writes the map, so the writes find it as the
+    // reads left it.
+    std::lock_guard<std::mutex> iteration(iterate_mu_);
+    {
+      std::shared_lock lock(mu_);
+      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it));
+    }
     std::unique_lock lock(mu_);
-    auto loss = trainer_->Iterate(*buffer_, outside_->rays, train_decoder, &it);
+    auto loss = trainer_->Apply(train_decoder, &it);
     if (!loss.ok()) return loss.status();
     loss_sum += *loss;
     map_version_.fetch_add(1);

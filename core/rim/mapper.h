@@ -228,8 +228,15 @@ class Mapper {
   std::unique_ptr<OutsideRaysHolder> outside_;
 
   // Writers (the training thread) hold it exclusively per step; readers share it. A waiting writer
-  // goes before new readers (base/shared_mutex.h): no method takes it shared twice.
+  // goes before new readers (base/shared_mutex.h): no method takes it shared twice. A training
+  // iteration holds it shared while it samples, encodes and runs the network (Trainer::Prepare,
+  // which reads the map) and exclusively only for its writes (Trainer::Apply), so readers wait for
+  // the writes alone.
   mutable WriterFirstSharedMutex mu_;
+  // Held by the trainer over a whole iteration, between its shared and exclusive parts, and by
+  // Save: a checkpoint never sees an iteration half done (its sampler drawn, its step not taken).
+  // Order: save_mu_, refresh_mu_, iterate_mu_, mu_.
+  mutable std::mutex iterate_mu_;
   // One Save() at a time, whatever the directory: overlapping saves picked the same checkpoint
   // folder, or pruned each other's (mapper_persistence.cc).
   mutable std::mutex save_mu_;

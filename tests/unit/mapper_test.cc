@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -655,6 +656,77 @@ TEST(MapperTrainingPathTest, UnknownStepIsRejected) {
   const absl::Status v = s.ok() ? config->Validate() : s;
   EXPECT_FALSE(v.ok());
   EXPECT_THAT(std::string(v.message()), HasSubstr("train.step"));
+}
+
+}  // namespace
+}  // namespace rim
+
+namespace rim {
+namespace {
+
+// A training iteration reads the map beside queries, meshing and saves, and takes it alone only
+// to write (Mapper::IntegrateScan). Readers running the whole time must change nothing the
+// trainer computes, and a checkpoint taken meanwhile must hold whole iterations: it loads, and
+// the map it holds continues exactly like the live one.
+TEST(MapperTrainingPathTest, ReadersBesideTrainingChangeNothingAndSavesHoldWholeIterations) {
+  const AnalyticScene scene = SmallScene();
+  const std::vector<float> xyz = Probe();
+  auto alone = Mapper::Create(SmallConfig());
+  auto shared = Mapper::Create(SmallConfig());
+  ASSERT_TRUE(alone.ok() && shared.ok());
+  const std::string dir = ::testing::TempDir() + "/rim_mapper_readers_beside_training";
+  std::filesystem::remove_all(dir);
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0}, saves{0}, failures{0};
+  std::thread reader([&] {
+    while (!done.load()) {
+      QueryResult q;
+      if (!(*shared)->QuerySdf(xyz.data(), xyz.size() / 3, true, &q).ok()) ++failures;
+      if (!(*shared)->QueryNeural(xyz.data(), xyz.size() / 3, true, &q).ok()) ++failures;
+      for (const TileInfo& t : (*shared)->ListTiles(0))
+        if (!(*shared)->MeshTile(t.key).ok()) ++failures;
+      ++reads;
+    }
+  });
+  std::thread saver([&] {
+    while (!done.load()) {
+      if (!(*shared)->Save(dir).ok()) ++failures;
+      ++saves;
+    }
+  });
+  for (int f = 0; f < 6; ++f) {
+    ASSERT_TRUE((*alone)->IntegrateScan(ScanAt(scene, 0.1f * f, 10 + f)).ok());
+    ASSERT_TRUE((*shared)->IntegrateScan(ScanAt(scene, 0.1f * f, 10 + f)).ok());
+  }
+  done = true;
+  reader.join();
+  saver.join();
+  EXPECT_EQ(failures.load(), 0);
+  EXPECT_GT(reads.load(), 0);
+  EXPECT_GT(saves.load(), 0);
+  EXPECT_EQ((*alone)->decoder().params(), (*shared)->decoder().params());
+  QueryResult a, s;
+  ASSERT_TRUE((*alone)->QueryNeural(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*shared)->QueryNeural(xyz.data(), xyz.size() / 3, true, &s).ok());
+  EXPECT_EQ(a.sdf, s.sdf);
+  EXPECT_EQ(a.gradient, s.gradient);
+  // The last checkpoint, taken at some point during training, continues like the live map
+  // would from there: both take the same next frames and end equal.
+  auto restored = Mapper::Load(dir);
+  ASSERT_TRUE(restored.ok()) << restored.status();
+  const int64_t at = (*restored)->frames();
+  auto replay = Mapper::Create(SmallConfig());
+  ASSERT_TRUE(replay.ok());
+  for (int f = 0; f < at; ++f)
+    ASSERT_TRUE((*replay)->IntegrateScan(ScanAt(scene, 0.1f * f, 10 + f)).ok());
+  for (int f = int(at); f < 6; ++f) {
+    ASSERT_TRUE((*restored)->IntegrateScan(ScanAt(scene, 0.1f * f, 10 + f)).ok());
+    ASSERT_TRUE((*replay)->IntegrateScan(ScanAt(scene, 0.1f * f, 10 + f)).ok());
+  }
+  EXPECT_EQ((*restored)->decoder().params(), (*replay)->decoder().params());
+  ASSERT_TRUE((*restored)->QueryNeural(xyz.data(), xyz.size() / 3, true, &a).ok());
+  ASSERT_TRUE((*replay)->QueryNeural(xyz.data(), xyz.size() / 3, true, &s).ok());
+  EXPECT_EQ(a.sdf, s.sdf);
 }
 
 }  // namespace

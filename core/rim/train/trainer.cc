@@ -61,6 +61,12 @@ void Trainer::AddEikonalProbes() {
 
 absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideRays& outside,
                                        bool train_decoder, IterationTiming* timing) {
+  RIM_RETURN_IF_ERROR(Prepare(buffer, outside, train_decoder, timing));
+  return Apply(train_decoder, timing);
+}
+
+absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outside,
+                              bool train_decoder, IterationTiming* timing) {
   if (!grad_ready_) {
     grad_.Reset(*map_);
     grad_ready_ = true;
@@ -68,7 +74,7 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
   const double t0 = Now();
   sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_);
   if (timing) timing->sample_s += Now() - t0;
-  return TrainOnBatch(train_decoder, timing);
+  return PrepareBatch(train_decoder, timing);
 }
 
 absl::StatusOr<float> Trainer::IterateOn(const SampleBatch& batch, bool train_decoder,
@@ -78,22 +84,64 @@ absl::StatusOr<float> Trainer::IterateOn(const SampleBatch& batch, bool train_de
     grad_ready_ = true;
   }
   batch_ = batch;
-  return TrainOnBatch(train_decoder, timing);
+  RIM_RETURN_IF_ERROR(PrepareBatch(train_decoder, timing));
+  return Apply(train_decoder, timing);
 }
 
-absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming* timing) {
-  if (batch_.size() == 0) return 0.f;
-  double t0 = Now();
+absl::Status Trainer::PrepareBatch(bool train_decoder, IterationTiming* timing) {
+  prepared_ = false;
+  if (batch_.size() == 0) return absl::OkStatus();
+  const double t0 = Now();
   xyz_ = batch_.xyz;
   if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
   const int rows = int(xyz_.size() / 3);
-  double t1 = Now();
+  const double t1 = Now();
   features_.resize(size_t(rows) * map_->geometry().encoding_dim());
   EncodeLocal(*map_, xyz_.data(), rows, &encoding_, features_.data(), &pool_);
-  double t2 = Now();
+  const double t2 = Now();
+  if (timing) {
+    timing->sample_s += t1 - t0;
+    timing->encode_s += t2 - t1;
+  }
+  prepared_ = true;
+  // The reference trains in one pass that writes the map: all of it is Apply's.
+  if (reference_) return absl::OkStatus();
+
+  TrainStepInput in;
+  in.features = features_.data();
+  in.rows = rows;
+  in.labelled = int(batch_.size());
+  in.labels = batch_.labels.data();
+  in.sigma_m = config_.train.sigma_m;
+  in.eikonal_weight = config_.train.eikonal_weight;
+  in.eikonal_step_m = float(0.5 * map_->geometry().leaf_m());
+  in.train_decoder = train_decoder;
+  if (config_.train.step == "libtorch") {
+    auto ref = RunTrainStep(*decoder_, in);
+    if (!ref.ok()) {
+      prepared_ = false;
+      return ref.status();
+    }
+    step_out_ = *std::move(ref);
+  } else if (absl::Status s = mlp_.Run(*decoder_, in, &step_out_, &pool_); !s.ok()) {
+    prepared_ = false;
+    return s;
+  }
+  if (timing) {
+    timing->forward_s += step_out_.forward_s;
+    timing->backward_s +=
+        step_out_.backward_s + (Now() - t2 - step_out_.forward_s - step_out_.backward_s);
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<float> Trainer::Apply(bool train_decoder, IterationTiming* timing) {
+  if (!prepared_) return 0.f;  // nothing sampled yet: nothing to learn from
+  prepared_ = false;
+  const double t0 = Now();
   if (reference_) {
     // The whole iteration through the dense reference (labelled samples only: it has no eikonal
-    // term); the encode above serves the observed marking, as in the fast path.
+    // term); the encode of Prepare serves the observed marking, as in the fast path.
     auto loss = reference_->Iterate(batch_.xyz.data(), batch_.labels.data(), int(batch_.size()),
                                     train_decoder);
     if (!loss.ok()) return loss.status();
@@ -110,49 +158,18 @@ absl::StatusOr<float> Trainer::TrainOnBatch(bool train_decoder, IterationTiming*
         }
       }
     MarkObserved();
-    if (timing) {
-      timing->sample_s += t1 - t0;
-      timing->encode_s += t2 - t1;
-      timing->step_s += Now() - t2;
-    }
+    if (timing) timing->step_s += Now() - t0;
     return *loss;
   }
-
-  TrainStepInput in;
-  in.features = features_.data();
-  in.rows = rows;
-  in.labelled = int(batch_.size());
-  in.labels = batch_.labels.data();
-  in.sigma_m = config_.train.sigma_m;
-  in.eikonal_weight = config_.train.eikonal_weight;
-  in.eikonal_step_m = float(0.5 * map_->geometry().leaf_m());
-  in.train_decoder = train_decoder;
-  TrainStepOutput* out = &step_out_;
-  if (config_.train.step == "libtorch") {
-    auto ref = RunTrainStep(*decoder_, in);
-    if (!ref.ok()) return ref.status();
-    step_out_ = *std::move(ref);
-  } else if (absl::Status s = mlp_.Run(*decoder_, in, out, &pool_); !s.ok()) {
-    return s;
-  }
-  double t3 = Now();
-
   grad_.BeginIteration(map_);
-  UpdateFeatures(out->grad_features.data());
+  UpdateFeatures(step_out_.grad_features.data());
   if (train_decoder) {
     const AdamHyper hyper{config_.train.learning_rate, config_.train.adam_beta1,
                           config_.train.adam_beta2, config_.train.adam_eps};
-    decoder_->Step(hyper, out->grad_params);
+    decoder_->Step(hyper, step_out_.grad_params);
   }
-  double t4 = Now();
-  if (timing) {
-    timing->sample_s += t1 - t0;
-    timing->encode_s += t2 - t1;
-    timing->forward_s += out->forward_s;
-    timing->backward_s += out->backward_s + (t3 - t2 - out->forward_s - out->backward_s);
-    timing->step_s += t4 - t3;
-  }
-  return out->loss;
+  if (timing) timing->step_s += Now() - t0;
+  return step_out_.loss;
 }
 
 namespace {

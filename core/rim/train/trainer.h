@@ -36,6 +36,15 @@ class Trainer {
   absl::StatusOr<float> Iterate(const PointBuffer& buffer, const OutsideRays& outside,
                                 bool train_decoder, IterationTiming* timing);
 
+  // One iteration in two parts, for a caller that shares the map with readers (Mapper). Prepare
+  // samples, encodes and runs the network forward and backward: it reads the map, the decoder,
+  // the buffer and the outside rays and writes only the trainer's own state, so other readers may
+  // run beside it. Apply writes: the features' Adam step, the observed flags, the decoder's step;
+  // it needs the map alone. Iterate is Prepare then Apply, with the same bits.
+  absl::Status Prepare(const PointBuffer& buffer, const OutsideRays& outside, bool train_decoder,
+                       IterationTiming* timing);
+  absl::StatusOr<float> Apply(bool train_decoder, IterationTiming* timing);
+
   // One iteration on the given samples instead of sampled ones (the same steps after sampling):
   // what tests use to run this trainer and the reference on identical batches.
   absl::StatusOr<float> IterateOn(const SampleBatch& batch, bool train_decoder,
@@ -47,7 +56,7 @@ class Trainer {
   const SampleBatch& last_batch() const { return batch_; }
 
  private:
-  absl::StatusOr<float> TrainOnBatch(bool train_decoder, IterationTiming* timing);
+  absl::Status PrepareBatch(bool train_decoder, IterationTiming* timing);
   void AddEikonalProbes();
   // Gradient scatter, lazy Adam on the touched rows and observed marking, in one pool region.
   void UpdateFeatures(const float* grad_features);
@@ -67,6 +76,7 @@ class Trainer {
   AdamBiasTable bias_;
   std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: which levels are scattered
   bool grad_ready_ = false;
+  bool prepared_ = false;                        // Prepare left a batch for Apply
   std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };
