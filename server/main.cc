@@ -26,6 +26,7 @@
 #include "rim/base/version.h"
 #include "server/compute_scheduler.h"
 #include "server/http_api.h"
+#include "server/meshing_budget.h"
 #include "server/metrics.h"
 #include "server/security.h"
 #include "server/server_config.h"
@@ -129,6 +130,14 @@ int Run(int argc, char** argv) {
   manager_options.events = &metrics;
   manager_options.scheduler = &scheduler;
   manager_options.background_nice = config->background_nice;
+  rim::server::MeshingBudget meshing_budget(
+      config->meshing_cores >= 0
+          ? config->meshing_cores
+          : rim::server::DefaultMeshingCores(std::thread::hardware_concurrency()));
+  manager_options.meshing_budget = &meshing_budget;
+  if (meshing_budget.limited())
+    std::cerr << "rim_server: watchers mesh within " << meshing_budget.cores()
+              << " CPU-seconds per second\n";
   manager_options.data_dir = config->data_dir;
   manager_options.default_preset = config->default_preset;
   manager_options.max_sessions = config->max_sessions;

@@ -11,6 +11,7 @@
 #include <prometheus/text_serializer.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <exception>
@@ -132,6 +133,16 @@ struct ServerMetrics::Families {
                             .Help("Mesh blocks meshed anew for tile encodings (the others were "
                                   "reused from the mesh block cache)")
                             .Register(r)),
+        watch_cpu(prometheus::BuildCounter()
+                      .Name("rim_meshing_cpu_seconds_total")
+                      .Help("CPU time watchers spent meshing and encoding tiles (what the "
+                            "meshing budget is charged)")
+                      .Register(r)),
+        watch_budget_wait(prometheus::BuildCounter()
+                              .Name("rim_meshing_budget_wait_seconds_total")
+                              .Help("Time watchers waited for the server's meshing budget "
+                                    "(--meshing-cores) before meshing a tile")
+                              .Register(r)),
         push_delay(prometheus::BuildHistogram()
                        .Name("rim_mesh_tile_push_delay_seconds")
                        .Help("From the integration of the frame that made a tile version to "
@@ -166,6 +177,8 @@ struct ServerMetrics::Families {
   prometheus::Family<prometheus::Counter>& tile_bytes;
   prometheus::Family<Histogram>& meshing;
   prometheus::Family<prometheus::Counter>& blocks_remeshed;
+  prometheus::Family<prometheus::Counter>& watch_cpu;
+  prometheus::Family<prometheus::Counter>& watch_budget_wait;
   prometheus::Family<Histogram>& push_delay;
   prometheus::Family<Histogram>& checkpoint;
   prometheus::Family<Histogram>& wal;
@@ -385,6 +398,13 @@ void ServerMetrics::TileEncoded(const std::string& robot, size_t bytes, double s
   families_->blocks_remeshed.Add({{"session", robot}}).Increment(double(blocks_remeshed));
   families_->tile_bytes.Add({{"session", robot}}).Increment(double(bytes));
   families_->meshing.Add({{"session", robot}}, kMeshBuckets).Observe(seconds);
+}
+
+void ServerMetrics::WatchMeshed(const std::string& robot, double cpu_seconds,
+                                double budget_wait_seconds) {
+  families_->watch_cpu.Add({{"session", robot}}).Increment(std::max(0.0, cpu_seconds));
+  families_->watch_budget_wait.Add({{"session", robot}})
+      .Increment(std::max(0.0, budget_wait_seconds));
 }
 
 void ServerMetrics::TilePushed(const std::string& robot, double delay_seconds) {

@@ -55,6 +55,8 @@ class ServerMetrics : public SessionEvents {
   void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) override;
   void TileEncoded(const std::string& robot, size_t bytes, double seconds,
                    int blocks_remeshed) override;
+  void WatchMeshed(const std::string& robot, double cpu_seconds,
+                   double budget_wait_seconds) override;
   void TilePushed(const std::string& robot, double delay_seconds) override;
   void QueryAnswered(const std::string& robot, size_t points, double seconds) override;
 

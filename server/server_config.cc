@@ -1,6 +1,7 @@
 #include "server/server_config.h"
 
 #include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -60,6 +61,14 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     if (c->background_nice > 19)
       return absl::InvalidArgumentError(
           absl::StrCat("--background-nice: expected an integer in [0, 19], got '", value, "'"));
+    return absl::OkStatus();
+  } else if (name == "meshing-cores") {
+    double v = 0;
+    if (!absl::SimpleAtod(value, &v) || !std::isfinite(v) || v < 0 || v > 1024)
+      return absl::InvalidArgumentError(absl::StrCat(
+          "--meshing-cores: expected a number of cores in [0, 1024] (0 = no budget), got '", value,
+          "'"));
+    c->meshing_cores = v;
     return absl::OkStatus();
   } else if (name == "shutdown-deadline") {
     return ParseInt(name, value, 0, &c->shutdown_deadline_s);
@@ -141,6 +150,8 @@ std::string ServerUsage() {
          "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n"
          "                  [--background-nice N (0-19, default 5: training and meshing yield\n"
          "                   the cores to queries)]\n"
+         "                  [--meshing-cores F (CPU-seconds per second all watchers' meshing\n"
+         "                   may use; default a quarter of the cores, 0 = no budget)]\n"
          "                  [--tokens FILE] [--tls-cert FILE --tls-key FILE [--tls-client-ca "
          "FILE]]\n"
          "                  [--insecure (serve a non-loopback --listen without --tokens)]\n"
@@ -169,6 +180,7 @@ std::string ServerConfig::ToString() const {
     << "shutdown_deadline = " << shutdown_deadline_s << "\n"
     << "train_slots = " << train_slots << "\n"
     << "background_nice = " << background_nice << "\n"
+    << "meshing_cores = " << meshing_cores << "\n"
     << "max_streams = " << max_streams << "\n"
     << "tokens = " << tokens_file << "\n"
     << "tls_cert = " << tls_cert << "\n"

@@ -17,6 +17,7 @@
 #include "absl/container/flat_hash_map.h"
 #include "rim/base/thread_priority.h"
 #include "server/latest_queue.h"
+#include "server/meshing_budget.h"
 #include "server/service.h"
 #include "server/status_mapping.h"
 
@@ -24,6 +25,7 @@ namespace rim::server {
 namespace {
 
 constexpr auto kPollInterval = std::chrono::milliseconds(500);
+constexpr auto kBudgetSlice = std::chrono::milliseconds(50);
 
 class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
  public:
@@ -87,7 +89,15 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
         if (now.key == tile.key) tile.version = now.version;
       uint64_t& pushed = pushed_[tile.key];
       if (tile.version <= pushed) continue;
+      // Within the server's meshing budget: wait until it has paid for the tiles meshed before.
+      const double waited = WaitForMeshingBudget();
+      if (waited < 0) return false;
+      const double cpu_start = ThreadCpuSeconds();
       auto encoded = session_->tiles().Get(session_->mapper(), tile);
+      const double cpu = ThreadCpuSeconds() - cpu_start;
+      if (MeshingBudget* budget = session_->meshing_budget()) budget->Charge(cpu);
+      if (SessionEvents* events = session_->events())
+        events->WatchMeshed(session_->robot_id(), cpu, waited);
       std::lock_guard<std::mutex> lock(mu_);
       if (stop_) return false;
       if (!encoded.ok()) {
@@ -101,6 +111,24 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
     }
     *listed_version = newest;
     return true;
+  }
+
+  // Waits while the meshing budget is in debt. Returns the seconds waited, or -1 when the watch
+  // ended meanwhile.
+  double WaitForMeshingBudget() {
+    MeshingBudget* budget = session_->meshing_budget();
+    if (!budget || !budget->limited()) return 0;
+    const auto start = std::chrono::steady_clock::now();
+    std::unique_lock<std::mutex> lock(mu_);
+    for (auto delay = budget->Delay(); delay > std::chrono::steady_clock::duration::zero();
+         delay = budget->Delay()) {
+      // In slices, as other watches may take the credit first.
+      if (cv_.wait_for(lock, std::min<std::chrono::steady_clock::duration>(delay, kBudgetSlice),
+                       [this] { return stop_; }))
+        return -1;
+    }
+    if (stop_) return -1;
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
 
   void Watch() {

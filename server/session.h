@@ -20,6 +20,7 @@
 #include "rim/config/config.h"
 #include "rim/mapper.h"
 #include "server/compute_scheduler.h"
+#include "server/meshing_budget.h"
 #include "server/session_events.h"
 #include "server/session_lease.h"
 #include "server/tile_cache.h"
@@ -48,6 +49,9 @@ struct SessionOptions {
   // meshing of its watchers): above 0, queries and ingest on the normal-priority RPC threads
   // take the cores first (docs/service.md, "Sharing the cores").
   int background_nice = 0;
+  // The CPU budget of its watchers' meshing, shared with other sessions' watchers
+  // (server/meshing_budget.h). Not owned, outlives the session; null: no budget.
+  MeshingBudget* meshing_budget = nullptr;
 };
 
 struct IntegratedAck {
@@ -120,6 +124,8 @@ class Session {
 
   const std::string& robot_id() const { return robot_id_; }
   int background_nice() const { return options_.background_nice; }
+  MeshingBudget* meshing_budget() const { return options_.meshing_budget; }
+  SessionEvents* events() const { return options_.events; }
   TileCache& tiles() { return tiles_; }
   Mapper& mapper() { return *mapper_; }
   const Mapper& mapper() const { return *mapper_; }

@@ -30,6 +30,10 @@ class SessionEvents {
   // were meshed anew, the others came from the mesh block cache.
   virtual void TileEncoded(const std::string& robot, size_t bytes, double seconds,
                            int blocks_remeshed) {}
+  // A watcher spent `cpu_seconds` of CPU meshing and encoding one tile (cache hits included), and
+  // waited `budget_wait_seconds` for the meshing budget before it (server/meshing_budget.h).
+  virtual void WatchMeshed(const std::string& robot, double cpu_seconds,
+                           double budget_wait_seconds) {}
   // A watcher pushed a tile `delay_seconds` after the frame that made its version was integrated.
   virtual void TilePushed(const std::string& robot, double delay_seconds) {}
   virtual void QueryAnswered(const std::string& robot, size_t points, double seconds) {}

@@ -91,6 +91,7 @@ SessionOptions SessionManager::MakeSessionOptions(const std::string& robot_id) c
   o.events = options_.events;
   o.scheduler = options_.scheduler;
   o.background_nice = options_.background_nice;
+  o.meshing_budget = options_.meshing_budget;
   return o;
 }
 

@@ -31,7 +31,8 @@ struct SessionManagerOptions {
   SessionEvents* events = nullptr;
   // Shares the compute between the sessions' trainers; not owned; may be null.
   ComputeScheduler* scheduler = nullptr;
-  int background_nice = 0;  // SessionOptions::background_nice
+  int background_nice = 0;                  // SessionOptions::background_nice
+  MeshingBudget* meshing_budget = nullptr;  // SessionOptions::meshing_budget; not owned
   // This replica's name in the session leases (docs/service.md, "Replicas and shared storage").
   std::string replica_id = "rim_server";
   // Replicas share the data dir: a call about a session that no replica has open opens it here

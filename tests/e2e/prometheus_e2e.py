@@ -191,6 +191,7 @@ def main() -> int:
             (f"rim_mesh_tile_bytes_total{s}", lambda v: v > 100),
             (f"rim_meshing_seconds_count{s}", lambda v: v >= 1),
             (f"rim_mesh_tile_push_delay_seconds_count{s}", lambda v: v >= 1),
+            (f"rim_meshing_cpu_seconds_total{s}", lambda v: v > 0),
             (f'rim_submaps{{session="{ROBOT}",state="active"}}', lambda v: v >= 1),
             (f"rim_session_host_memory_bytes{s}", lambda v: v > 1e6),
             (f"rim_checkpoint_seconds_count{s}", lambda v: v >= 1),

@@ -3,8 +3,12 @@
 // and the session stays usable with exactly the valid scans in it; depth images are ingested;
 // queries and sessions have their limits; the host memory budget refuses sessions and scans; and
 // health reports NOT_SERVING until warm-up is done.
+#include <arpa/inet.h>
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
@@ -14,9 +18,11 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <sstream>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "client/client.h"
@@ -461,6 +467,108 @@ TEST(ServerPriorityTest, TrainingAndMeshingRunAtTheBackgroundNiceAndQueriesDoNot
   EXPECT_THAT(std::string(refused.status().message()), HasSubstr("--background-nice"));
 }
 #endif
+
+// The body of GET http://host:port/path, over a plain socket ("" on any failure).
+std::string HttpGet(const std::string& host_port, const std::string& path) {
+  const size_t colon = host_port.rfind(':');
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(uint16_t(std::stoi(host_port.substr(colon + 1))));
+  if (inet_pton(AF_INET, host_port.substr(0, colon).c_str(), &addr.sin_addr) != 1) return "";
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return "";
+  std::string out;
+  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0) {
+    const std::string request =
+        "GET " + path + " HTTP/1.0\r\nHost: " + host_port + "\r\nConnection: close\r\n\r\n";
+    if (send(fd, request.data(), request.size(), 0) == ssize_t(request.size())) {
+      char buf[65536];
+      for (ssize_t n; (n = recv(fd, buf, sizeof(buf), 0)) > 0;) out.append(buf, size_t(n));
+    }
+  }
+  close(fd);
+  const size_t body = out.find("\r\n\r\n");
+  return body == std::string::npos ? "" : out.substr(body + 4);
+}
+
+// The value of one sample line `name{labels} value` of an exposition text; NaN when absent.
+double MetricValue(const std::string& text, const std::string& series) {
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind(series + " ", 0) == 0) return std::stod(line.substr(series.size() + 1));
+  return std::nan("");
+}
+
+// docs/service.md, "Sharing the cores": all watchers mesh within --meshing-cores CPU-seconds per
+// second. A tiny budget makes a watcher wait between tiles, and it still gets the last version
+// of every tile when the session closes; the CPU charged never runs ahead of the budget by more
+// than its burst and the tile in hand.
+TEST(ServerMeshingBudgetTest, WatchersWaitForTheBudgetAndStillGetEveryTileAtItsLastVersion) {
+  constexpr double kCores = 0.02;  // 20 ms of meshing per second, 20 ms of burst
+  ServerProcessOptions options;
+  options.args = {"--meshing-cores", "0.02", "--metrics", "127.0.0.1:0"};
+  auto server = ServerProcess::Start(options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  const std::string log = (*server)->Log();
+  const std::string marker = "metrics on http://";
+  const size_t at = log.find(marker);
+  ASSERT_NE(at, std::string::npos) << log;
+  const std::string metrics_addr =
+      log.substr(at + marker.size(), log.find("/metrics", at) - at - marker.size());
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  auto overrides = kSmallMap;
+  overrides.push_back({"watch.min_interval_s", "0"});  // a round after every frame
+  ASSERT_TRUE(client->CreateSession("budget", "maicity", overrides).ok());
+  const auto start = std::chrono::steady_clock::now();
+  std::map<std::tuple<int, int, int>, uint64_t> pushed;  // newest version per tile
+  std::thread watcher([&] {
+    auto watched = client->Session("budget").Watch([&](const DecodedTile& tile) {
+      auto& v = pushed[{tile.key[0], tile.key[1], tile.key[2]}];
+      v = std::max(v, tile.version);
+      return true;
+    });
+    EXPECT_TRUE(watched.ok()) << watched;  // OK when the session closes
+  });
+  std::vector<PosedScan> scans;
+  for (int f = 0; f < 8; ++f) scans.push_back(GroundScan(0.3 * f));
+  auto streamed = client->Session("budget").Stream(scans);
+  ASSERT_TRUE(streamed.ok()) << streamed.status();
+  auto tiles = client->Session("budget").MeshTiles();
+  ASSERT_TRUE(tiles.ok()) << tiles.status();
+  const std::string text = HttpGet(metrics_addr, "/metrics");
+  const double elapsed_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_TRUE(client->CloseSession("budget", false).ok());
+  watcher.join();
+  // Every tile arrived, at the version the map has after the last frame.
+  ASSERT_FALSE(tiles->empty());
+  for (const DecodedTile& t : *tiles) {
+    auto it = pushed.find({t.key[0], t.key[1], t.key[2]});
+    ASSERT_NE(it, pushed.end()) << "tile " << t.key[0] << "," << t.key[1] << " never pushed";
+    EXPECT_EQ(it->second, t.version) << "tile " << t.key[0] << "," << t.key[1];
+  }
+  const double cpu = MetricValue(text, "rim_meshing_cpu_seconds_total{session=\"budget\"}");
+  const double waited =
+      MetricValue(text, "rim_meshing_budget_wait_seconds_total{session=\"budget\"}");
+  const double encode_wall = MetricValue(text, "rim_meshing_seconds_sum{session=\"budget\"}");
+  ASSERT_FALSE(std::isnan(cpu) || std::isnan(waited)) << text;
+  EXPECT_GT(cpu, kCores) << "the watcher meshed less than its burst: the budget never bound";
+  EXPECT_GT(waited, 0.0);
+  // Charged CPU ≤ budget × time + burst + the tile meshed after the last wait (its wall time,
+  // at most all the encodings' wall time, bounds its CPU time).
+  EXPECT_LE(cpu, kCores * elapsed_s + kCores + encode_wall);
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+
+  // A budget that is not a number of cores is refused at start, by name.
+  for (const char* bad : {"-1", "nan", "lots"}) {
+    ServerProcessOptions refused_options;
+    refused_options.args = {"--meshing-cores", bad};
+    auto refused = ServerProcess::Start(refused_options);
+    ASSERT_FALSE(refused.ok()) << bad;
+    EXPECT_THAT(std::string(refused.status().message()), HasSubstr("--meshing-cores")) << bad;
+  }
+}
 
 TEST(ServerWarmupTest, HealthIsNotServingUntilWarmedUp) {
   ServerProcessOptions options;

@@ -58,6 +58,8 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
   m.QueryAnswered("r2", 1000, 0.002);
   m.TileEncoded("r1", 4096, 0.05, 7);
   m.TilePushed("r1", 1.2);
+  m.WatchMeshed("r1", 0.25, 0.5);
+  m.WatchMeshed("r1", 0.125, 0.0);
   m.CheckpointWritten("r1", 0.3, 1 << 20);
   m.WalAppended("r1", 0.001);
   m.RpcFinished("/rim.v1.Rim/QuerySdf", 5, 0.01);
@@ -86,6 +88,8 @@ TEST(ServerMetricsTest, EventsShowUpInTheExpositionText) {
   EXPECT_THAT(text, HasSubstr("rim_mesh_blocks_remeshed_total{session=\"r1\"} 7"));
   EXPECT_THAT(text, HasSubstr("rim_mesh_tile_push_delay_seconds_count{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_mesh_tile_push_delay_seconds_sum{session=\"r1\"} 1.2"));
+  EXPECT_THAT(text, HasSubstr("rim_meshing_cpu_seconds_total{session=\"r1\"} 0.375"));
+  EXPECT_THAT(text, HasSubstr("rim_meshing_budget_wait_seconds_total{session=\"r1\"} 0.5"));
   EXPECT_THAT(text, HasSubstr("rim_checkpoint_seconds_count{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_wal_append_seconds_count{session=\"r1\"} 1"));
   EXPECT_THAT(text, HasSubstr("rim_grpc_requests_total{code=\"NOT_FOUND\",method=\"QuerySdf\"} 1"));
