@@ -5,7 +5,9 @@
 // a time. Rounds start at most once per watch.min_interval_s, when a frame was integrated since
 // the last one, so a tile is pushed at most once per interval, at its newest version. The queue
 // holds at most one message per tile: a slow dashboard gets the newest version of each tile when
-// it catches up, and memory stays bounded by the tile count.
+// it catches up, and memory stays bounded by the tile count. Every tile a watcher meshes is charged
+// to the server's meshing budget (server/meshing_budget.h), and the watcher waits while it is in
+// debt, so all watches together take at most --meshing-cores of the machine.
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>
