@@ -175,6 +175,10 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   StageTimings t;
   const double start = Now();
   std::optional<IntBox> old_box;  // the box before this frame's slide (its leaving slabs change)
+  // The whole frame, from its slide to its versions, against Save: a checkpoint holds whole
+  // frames (never a frame's points in the buffer, or some of its iterations, with the frame not
+  // counted), so that a restore followed by a replay of the frames after it is the live map.
+  std::unique_lock<std::mutex> frame(frame_mu_);
   {
     std::unique_lock lock(mu_);
     const double t0 = Now();
@@ -194,7 +198,6 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
     // and takes it alone only to write. Nothing else writes the map, so the writes find it as the
     // reads left it.
-    std::lock_guard<std::mutex> iteration(iterate_mu_);
     {
       std::shared_lock lock(mu_);
       RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it));
@@ -219,6 +222,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
+  frame.unlock();  // before the refresh, which takes refresh_mu_ (the order Save keeps)
   if (refresh_in_frame_ && RefreshDueLocked(nullptr)) t.distance_s = RefreshDistanceField();
   t.sample_s = it.sample_s;
   t.encode_s = it.encode_s;

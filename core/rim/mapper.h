@@ -233,10 +233,11 @@ class Mapper {
   // which reads the map) and exclusively only for its writes (Trainer::Apply), so readers wait for
   // the writes alone.
   mutable WriterFirstSharedMutex mu_;
-  // Held by the trainer over a whole iteration, between its shared and exclusive parts, and by
-  // Save: a checkpoint never sees an iteration half done (its sampler drawn, its step not taken).
-  // Order: save_mu_, refresh_mu_, iterate_mu_, mu_.
-  mutable std::mutex iterate_mu_;
+  // Held by IntegrateScan over a frame's changes (slide, preprocessing, every iteration, the
+  // versions; not its distance refresh) and by Save: a checkpoint holds whole frames, never a
+  // frame's points or iterations without the frame counted, nor an iteration half done (its
+  // sampler drawn, its step not taken). Order: save_mu_, refresh_mu_, frame_mu_, mu_.
+  mutable std::mutex frame_mu_;
   // One Save() at a time, whatever the directory: overlapping saves picked the same checkpoint
   // folder, or pruned each other's (mapper_persistence.cc).
   mutable std::mutex save_mu_;

@@ -281,7 +281,7 @@ absl::Status Mapper::Save(const std::string& dir, int64_t* frames_saved) const {
   RIM_RETURN_IF_ERROR(MakeDirs(dir));
   // Before mu_, as RefreshDistanceField takes them: the refresh state is saved as it stands.
   std::lock_guard<std::mutex> refresh_lock(refresh_mu_);
-  std::lock_guard<std::mutex> iteration_lock(iterate_mu_);  // between iterations, never within
+  std::lock_guard<std::mutex> frame_lock(frame_mu_);  // between frames, never within one
   std::shared_lock lock(mu_);
   // Under the lock: the trainer may have slid the local map since any earlier flush, and slabs
   // still on their way to the store would be in neither the local map nor the checkpoint. The

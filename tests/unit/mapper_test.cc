@@ -666,9 +666,9 @@ namespace {
 
 // A training iteration reads the map beside queries, meshing and saves, and takes it alone only
 // to write (Mapper::IntegrateScan). Readers running the whole time must change nothing the
-// trainer computes, and a checkpoint taken meanwhile must hold whole iterations: it loads, and
+// trainer computes, and a checkpoint taken meanwhile must hold whole frames: it loads, and
 // the map it holds continues exactly like the live one.
-TEST(MapperTrainingPathTest, ReadersBesideTrainingChangeNothingAndSavesHoldWholeIterations) {
+TEST(MapperTrainingPathTest, ReadersBesideTrainingChangeNothingAndSavesHoldWholeFrames) {
   const AnalyticScene scene = SmallScene();
   const std::vector<float> xyz = Probe();
   auto alone = Mapper::Create(SmallConfig());
