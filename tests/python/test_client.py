@@ -221,7 +221,8 @@ class ClientTest(unittest.TestCase):
 
     def test_gradient_points_up_at_the_ground(self) -> None:
         # Away from the crease where the ground meets the box: there the nearest surface point of
-        # a point on the ground may lie on either face, and the map rounds the crease.
+        # a point on the ground may lie on either face, and the map rounds the crease. The ground
+        # points include some at the corners of its voxels, where the disks leave gaps (core.md).
         points = self.ground_points(600, seed=3)
         points = points[scene.box_sdf(points) > 0.15][:300]
         self.assertEqual(len(points), 300)
@@ -231,7 +232,7 @@ class ClientTest(unittest.TestCase):
         self.assertTrue(0.7 < np.median(norm) < 1.4, f"median |grad| {np.median(norm)}")
         self.assertGreaterEqual(((norm > 0.5) & (norm < 2.0)).mean(), 0.9)
         up = result.gradient[:, 2] / np.maximum(norm, 1e-9)
-        self.assertGreaterEqual((up > 0.8).mean(), 0.95,
+        self.assertGreaterEqual((up > 0.8).mean(), 0.97,
                                 f"up percentiles 1/5: {np.percentile(up, [1, 5])}")
 
     def test_large_batch_goes_through_the_stream_and_matches_unary_chunks(self) -> None:

@@ -119,6 +119,49 @@ TEST_F(DistanceFieldTest, BeyondAnEdgeTheGradientPointsAwayFromItAndMatchesFinit
   }
 }
 
+TEST_F(DistanceFieldTest, GapsAtVoxelCornersOfAPlaneReadThePlaneAndItsNormal) {
+  // The default disks (0.6 voxel) leave a gap at each corner of a floor's voxels, 0.707 voxel
+  // from the four centres around it. The floor runs on there: its distance and its normal, not
+  // the distance to the nearest rim (up to 1 cm too far at the floor) and a sideways gradient.
+  DistanceField field(geometry_, 0.6f * float(geometry_.leaf_m()));
+  const Int3 key(0, 0, 0);
+  field.Replace(key, {}, Floor(key, 0.3f, 1.f, 5.f, 1.f, 9.f));
+  std::vector<float> xyz, truth;
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<float> jitter(-0.012f, 0.012f);
+  for (int i = 0; i < 300; ++i) {
+    // A corner of the voxel grid inside the floor, and a point near it.
+    const float cx = 0.1f * float(20 + i % 15), cy = 0.1f * float(20 + (i / 15) % 20);
+    const float z = 0.3f + std::array<float, 6>{0.f, 0.001f, -0.004f, 0.01f, 0.03f, 0.08f}[i % 6];
+    xyz.insert(xyz.end(), {cx + jitter(rng), cy + jitter(rng), z});
+    truth.push_back(z - 0.3f);
+  }
+  std::vector<float> sdf(truth.size()), grad(3 * truth.size());
+  std::vector<uint8_t> sat(truth.size());
+  field.Query(xyz.data(), truth.size(), 2.f, sdf.data(), grad.data(), sat.data());
+  for (size_t i = 0; i < truth.size(); ++i) {
+    EXPECT_NEAR(sdf[i], truth[i], 1e-5f) << xyz[3 * i] << " " << xyz[3 * i + 1];
+    EXPECT_NEAR(grad[3 * i + 2], 1.f, 1e-5f) << xyz[3 * i] << " " << xyz[3 * i + 1];
+  }
+
+  // Past the floor's end (its last centres at x = 4.95, their rims at 5.01), the edge is still
+  // an edge: the distance and direction from the rim, also between two of its disks.
+  xyz.clear();
+  for (float y : {4.05f, 4.0f, 4.003f})
+    for (float x : {5.02f, 5.04f})
+      for (float dz : {0.002f, 0.005f, 0.02f}) xyz.insert(xyz.end(), {x, y, 0.3f + dz});
+  const size_t n = xyz.size() / 3;
+  sdf.resize(n);
+  grad.resize(3 * n);
+  sat.resize(n);
+  field.Query(xyz.data(), n, 2.f, sdf.data(), grad.data(), sat.data());
+  for (size_t i = 0; i < n; ++i) {
+    EXPECT_GT(sdf[i], xyz[3 * i] - 5.01f - 1e-4f) << xyz[3 * i] << " " << xyz[3 * i + 1];
+    EXPECT_GT(grad[3 * i], 0.25f) << xyz[3 * i] << " " << xyz[3 * i + 1] << " " << xyz[3 * i + 2]
+                                  << " sdf " << sdf[i] << " g " << grad[3 * i + 2];
+  }
+}
+
 TEST_F(DistanceFieldTest, TheNearestOfSeveralSubmapsWins) {
   // Two sub-maps side by side (x < 20 m and x >= 20 m) with floors at different heights.
   field_.Replace(Int3(0, 0, 0), {}, Floor(Int3(0, 0, 0), 0.2f, 15.f, 20.f, 1.f, 5.f));

@@ -121,6 +121,63 @@ struct NearestDisk {
   }
 };
 
+// A nanoflann result set that collects every surfel whose centre lies within a radius.
+struct WithinRadius {
+  float radius2;
+  std::array<uint32_t, 64> found{};
+  int count = 0;
+  float worstDist() const { return radius2; }
+  bool full() const { return true; }
+  bool addPoint(float d2, uint32_t i) {
+    if (d2 < radius2 && count < int(found.size())) found[count++] = i;
+    return true;
+  }
+};
+
+// Whether q, beside every disk and near the surface, lies in a gap of a plane rather than past
+// its edge. Disks of radius r on a plane sampled once per voxel leave gaps where their rims do
+// not meet: at the corners of an axis-aligned plane's voxels (0.707 voxel from four centres)
+// when r is under that. There the surface runs on, and its distance is the plane's and its
+// gradient the plane's normal; past an edge it is the rim's. A gap: the coplanar disks around q
+// (normals within 18 degrees of the nearest's, planes within a tenth of a voxel of its plane at
+// q, centres within in-plane reach) lie around it, not to one side (the mean of the unit
+// in-plane directions to their centres is under one half). On success, `normal` is the mean of
+// their normals (unit).
+bool InPlaneGap(const Tree& tree, const std::vector<Surfel>& surfels, const Surfel& nearest,
+                const float* q, float r, float leaf, Vec3f* normal) {
+  const Vec3f n(nearest.n[0], nearest.n[1], nearest.n[2]);
+  const Vec3f qv(q[0], q[1], q[2]);
+  const Vec3f v0 = qv - Vec3f(nearest.p[0], nearest.p[1], nearest.p[2]);
+  const float h = v0.dot(n);
+  // A corner's gap lies within 0.707 voxel of the nearest centre, in its plane: farther out, q is
+  // past an edge (and needs no search).
+  const float base = std::max(r, 0.6f * leaf);
+  if ((v0 - h * n).squaredNorm() > (base + 0.15f * leaf) * (base + 0.15f * leaf)) return false;
+  // Around a voxel corner the four centres lie 0.707 voxel away in the plane; a point in the gap
+  // but off the corner, a little farther from some of them.
+  const float reach = base + 0.3f * leaf;
+  WithinRadius search{reach * reach + h * h};
+  tree.findNeighbors(search, q, nanoflann::SearchParams());
+  Vec3f around = Vec3f::Zero(), sum = Vec3f::Zero();
+  int count = 0;
+  for (int k = 0; k < search.count; ++k) {
+    const Surfel& s = surfels[search.found[k]];
+    const Vec3f nj(s.n[0], s.n[1], s.n[2]);
+    if (nj.dot(n) < 0.95f) continue;
+    const Vec3f v = qv - Vec3f(s.p[0], s.p[1], s.p[2]);
+    if (std::abs(v.dot(nj) - h) > 0.1f * leaf) continue;
+    const Vec3f in_plane = -(v - v.dot(n) * n);
+    const float len = in_plane.norm();
+    if (len < 1e-6f) continue;
+    around += in_plane / len;
+    sum += nj;
+    ++count;
+  }
+  if (count < 2 || around.norm() >= 0.5f * float(count)) return false;
+  *normal = sum.normalized();
+  return true;
+}
+
 // Squared distance from q to an axis-aligned box.
 float BoxDistance2(const float* q, const Vec3f& lo, const Vec3f& hi) {
   float d2 = 0;
@@ -328,6 +385,7 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     }
   // Returns are points (radius 0 <= radius_), so the surfels' radius bounds every part's reach.
   const float reach = max_distance_m + radius_;
+  const float leaf = float(geometry_.leaf_m());
   std::vector<PartPtr> parts;
   {
     std::shared_lock<std::shared_mutex> lock(mu_);
@@ -426,6 +484,19 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     float d = 0, sign = 1;
     bool on_face = false;
     const Vec3f away = AwayFrom(*nearest, q, nearest_part->radius, &d, &sign, &on_face);
+    Vec3f plane_normal;
+    if (!on_face && nearest_part->radius > 0.f && d < leaf &&
+        InPlaneGap(nearest_part->tree, nearest_part->surfels, *nearest, q, nearest_part->radius,
+                   leaf, &plane_normal)) {
+      // In a gap of a plane: the plane's distance (the nearest disk's, at q) and normal.
+      const float h = (Vec3f(q[0], q[1], q[2]) - Vec3f(nearest->p[0], nearest->p[1], nearest->p[2]))
+                          .dot(Vec3f(nearest->n[0], nearest->n[1], nearest->n[2]));
+      sdf[i] = std::clamp(h, -max_distance_m, max_distance_m);
+      if (saturated) saturated[i] = 0;
+      if (g)
+        for (int a = 0; a < 3; ++a) g[a] = plane_normal[a];
+      continue;
+    }
     sdf[i] = sign * std::min(d, max_distance_m);
     if (saturated) saturated[i] = 0;
     if (!g) continue;

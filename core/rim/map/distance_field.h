@@ -5,9 +5,10 @@
 // voxel that it crosses, as a surfel: a point of the zero level (found by Newton steps from the
 // voxel's centre) and the unit normal there (the field's gradient). A surfel stands for a disk of
 // radius `surfel_radius_m` in its tangent plane; the disks of neighbouring voxels overlap, so on
-// a plane the distance to the nearest disk is the distance to the plane. The distance of a point
-// is the smallest distance to a disk, found exactly with a k-d tree per sub-map (nanoflann); its
-// sign is the side of that disk's plane, and its gradient is the unit vector from the disk's
+// a plane the distance to the nearest disk is the distance to the plane, except in the small gaps
+// the disks leave at voxel corners, where a point reads the plane (see Query). The distance of a
+// point is the smallest distance to a disk, found exactly with a k-d tree per sub-map (nanoflann);
+// its sign is the side of that disk's plane, and its gradient is the unit vector from the disk's
 // nearest point. Farther than the bound, a point reads the bound and is flagged saturated.
 //
 // Surfels are kept per sub-map and replaced region by region as the map trains. Readers and the
