@@ -142,9 +142,9 @@ struct WithinRadius {
 // (normals within 18 degrees of the nearest's, planes within a tenth of a voxel of its plane at
 // q, centres within in-plane reach) lie around it, not to one side (the mean of the unit
 // in-plane directions to their centres is under one half). On success, `normal` is the mean of
-// their normals (unit).
+// their normals (unit) and `height` q's signed distance to the nearest disk's plane.
 bool InPlaneGap(const Tree& tree, const std::vector<Surfel>& surfels, const Surfel& nearest,
-                const float* q, float r, float leaf, Vec3f* normal) {
+                const float* q, float r, float leaf, Vec3f* normal, float* height) {
   const Vec3f n(nearest.n[0], nearest.n[1], nearest.n[2]);
   const Vec3f qv(q[0], q[1], q[2]);
   const Vec3f v0 = qv - Vec3f(nearest.p[0], nearest.p[1], nearest.p[2]);
@@ -175,6 +175,7 @@ bool InPlaneGap(const Tree& tree, const std::vector<Surfel>& surfels, const Surf
   }
   if (count < 2 || around.norm() >= 0.5f * float(count)) return false;
   *normal = sum.normalized();
+  *height = h;
   return true;
 }
 
@@ -485,12 +486,11 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
     bool on_face = false;
     const Vec3f away = AwayFrom(*nearest, q, nearest_part->radius, &d, &sign, &on_face);
     Vec3f plane_normal;
+    float h = 0;
     if (!on_face && nearest_part->radius > 0.f && d < leaf &&
         InPlaneGap(nearest_part->tree, nearest_part->surfels, *nearest, q, nearest_part->radius,
-                   leaf, &plane_normal)) {
+                   leaf, &plane_normal, &h)) {
       // In a gap of a plane: the plane's distance (the nearest disk's, at q) and normal.
-      const float h = (Vec3f(q[0], q[1], q[2]) - Vec3f(nearest->p[0], nearest->p[1], nearest->p[2]))
-                          .dot(Vec3f(nearest->n[0], nearest->n[1], nearest->n[2]));
       sdf[i] = std::clamp(h, -max_distance_m, max_distance_m);
       if (saturated) saturated[i] = 0;
       if (g)
