@@ -84,6 +84,24 @@ int Session::AdaptiveIterations(size_t queue_depth) const {
   return std::clamp(n, t.min_iterations, t.iterations);
 }
 
+int PacedIterationCount(double period_s, double iteration_s, double overhead_s, size_t queue_depth,
+                        int min_iterations, int max_iterations) {
+  if (!(period_s >= kMinPacedPeriodS) || !(iteration_s > 0) || !(overhead_s >= 0))
+    return max_iterations;
+  const double waiting = double(std::max<size_t>(queue_depth, 1) - 1);
+  const double budget = period_s * (0.95 - 0.25 * waiting) - overhead_s;
+  const double n = std::floor(budget / iteration_s);
+  if (!(n >= double(min_iterations))) return min_iterations;
+  return int(std::min(n, double(max_iterations)));
+}
+
+int Session::PacedIterations(size_t queue_depth, double period_s) const {
+  const TrainConfig& t = mapper_->config().train;
+  if (paced_frames_ < 3) return t.iterations;  // the costs are not known yet
+  return PacedIterationCount(period_s, iteration_s_, overhead_s_, queue_depth, t.min_iterations,
+                             t.iterations);
+}
+
 absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated) {
   std::lock_guard<std::mutex> lock(mu_);
   if (closing_)
@@ -106,6 +124,13 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
     if (options_.events) options_.events->WalAppended(robot_id_, SecondsSince(start));
   }
   ++next_index_;
+  // The robot's pace, for PacedIterations: a gap of two seconds or more is a pause, not a pace.
+  const double now = SteadySeconds();
+  if (last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
+    const double dt = now - last_arrival_s_;
+    arrival_period_s_ = arrival_period_s_ > 0 ? 0.8 * arrival_period_s_ + 0.2 * dt : dt;
+  }
+  last_arrival_s_ = now;
   last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
   has_sequence_ = true;
   queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
@@ -317,12 +342,17 @@ void Session::Run() {
     queue_.pop_front();
     busy_ = true;
     const size_t depth_at_start = queue_.size() + 1;
+    const double period_s = arrival_period_s_;
     std::vector<std::function<void()>> waiters;
     waiters.swap(space_waiters_);
     lock.unlock();
     for (auto& fn : waiters) fn();
 
-    const int iterations = AdaptiveIterations(depth_at_start);
+    // A robot streaming in real time gets what keeps its queue short; a queue that fills anyway
+    // (a burst, an upload) takes iterations away as before.
+    const int iterations =
+        std::min(AdaptiveIterations(depth_at_start), PacedIterations(depth_at_start, period_s));
+    const double frame_start_s = SteadySeconds();
     StageTimings timing;
     absl::Status status;
     {
@@ -364,6 +394,17 @@ void Session::Run() {
       }
     }
 
+    if (status.ok() && timing.iterations > 0) {
+      // The costs PacedIterations plans with: wall times, so that they include what the other
+      // threads (meshing, queries, other sessions) take from this one.
+      const double training_s =
+          timing.sample_s + timing.encode_s + timing.forward_s + timing.backward_s + timing.step_s;
+      const double per_iteration = training_s / timing.iterations;
+      const double rest = std::max(0.0, SteadySeconds() - frame_start_s - training_s);
+      iteration_s_ = paced_frames_ > 0 ? 0.8 * iteration_s_ + 0.2 * per_iteration : per_iteration;
+      overhead_s_ = paced_frames_ > 0 ? 0.8 * overhead_s_ + 0.2 * rest : rest;
+      ++paced_frames_;
+    }
     if (options_.events) {
       if (status.ok()) {
         options_.events->FrameIntegrated(robot_id_, timing);

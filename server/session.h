@@ -81,6 +81,19 @@ struct SessionStats {
   StageTimings last_timing;
 };
 
+// Scans that arrive less than this far apart on average come from an upload, not from a sensor:
+// the queue paces their training (Session::AdaptiveIterations), not their rate.
+inline constexpr double kMinPacedPeriodS = 0.02;
+
+// Iterations that keep a session up with a robot that sends a scan every `period_s` seconds,
+// when an iteration takes `iteration_s` and the rest of a frame (slide, preprocessing, its share
+// of distance refreshes) `overhead_s`, wall time: what fits in 95 % of the period, less a quarter
+// period for each scan waiting behind this one (`queue_depth` counts this one), so that the queue
+// stays short; within [min_iterations, max_iterations]. max_iterations when the period is below
+// kMinPacedPeriodS or a cost is unknown (not positive, or NaN).
+int PacedIterationCount(double period_s, double iteration_s, double overhead_s, size_t queue_depth,
+                        int min_iterations, int max_iterations);
+
 class Session {
  public:
   using IntegratedFn = std::function<void(const IntegratedAck&)>;
@@ -121,6 +134,10 @@ class Session {
   // Iterations the trainer will use for the next frame, given the queue depth: the configured
   // number while the queue is short, fewer as it fills, never below train.min_iterations (§5.1).
   int AdaptiveIterations(size_t queue_depth) const;
+  // The most iterations that keep up with a robot streaming in real time (PacedIterationCount
+  // with the robot's mean interval between scans, `period_s`, and the trainer's measured costs);
+  // train.iterations until three frames have measured them.
+  int PacedIterations(size_t queue_depth, double period_s) const;
 
   const std::string& robot_id() const { return robot_id_; }
   int background_nice() const { return options_.background_nice; }
@@ -204,6 +221,13 @@ class Session {
   // Trainer thread only: when the distance field's last refresh ended and how long it took
   // (steady clock seconds), to keep refreshes between frames to a share of the session's time.
   double last_refresh_end_s_ = -1e9, last_refresh_s_ = 0;
+  // The robot's pace (under mu_): when the last scan was accepted, and the mean interval between
+  // accepted scans (exponential average; 0 until two arrived less than 2 s apart).
+  double last_arrival_s_ = -1, arrival_period_s_ = 0;
+  // Trainer thread only: exponential averages of a training iteration's wall time and of the rest
+  // of a frame's (slide, preprocessing, distance refreshes), and the frames they have seen.
+  double iteration_s_ = 0, overhead_s_ = 0;
+  int paced_frames_ = 0;
   // Trainer thread only: a refresh was skipped for the budget after the last frame; the trainer
   // makes it up once the budget allows, if no frame comes first.
   bool refresh_owed_ = false;

@@ -2,8 +2,10 @@
 // iterations adapt to the queue depth, and closing drains every accepted scan.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <future>
 #include <mutex>
 #include <thread>
@@ -105,6 +107,68 @@ TEST(SessionTest, IterationsAdaptToQueueDepth) {
     EXPECT_GE(n, 2);
     previous = n;
   }
+}
+
+TEST(SessionTest, PacedIterationsFitThePeriodAndShrinkWithTheQueue) {
+  // 10 Hz, 6 ms an iteration, 25 ms of the rest: 95 - 25 = 70 ms, 11 iterations.
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, 0.025, 1, 2, 30), 11);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, 0.025, 0, 2, 30), 11);  // an empty queue: itself
+  // Each scan waiting behind takes a quarter period away: 45 ms, then 20 ms.
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, 0.025, 2, 2, 30), 7);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, 0.025, 3, 2, 30), 3);
+  // Never below the minimum, never above the configured count.
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, 0.025, 8, 2, 30), 2);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.020, 0.120, 1, 3, 30), 3);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.001, 0.0, 1, 3, 30), 30);
+  // An upload (scans under 20 ms apart) and unknown costs are not paced.
+  EXPECT_EQ(PacedIterationCount(0.01, 0.006, 0.025, 1, 3, 30), 30);
+  EXPECT_EQ(PacedIterationCount(0.0, 0.006, 0.025, 1, 3, 30), 30);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.0, 0.025, 1, 3, 30), 30);
+  EXPECT_EQ(PacedIterationCount(0.1, std::nan(""), 0.025, 1, 3, 30), 30);
+  EXPECT_EQ(PacedIterationCount(std::nan(""), 0.006, 0.025, 1, 3, 30), 30);
+  EXPECT_EQ(PacedIterationCount(0.1, 0.006, -1.0, 1, 3, 30), 30);
+}
+
+TEST(SessionTest, ARobotAtASensorsRateKeepsItsQueueShort) {
+  // Far more iterations than a 20 Hz robot leaves room for: queued by depth alone, the queue
+  // would fill until the iterations fell far enough. Paced, the trainer plans each frame to end
+  // before the next scan, so the queue stays short and the iterations settle between the bounds.
+  MapperConfig config = SmallConfig();
+  ASSERT_TRUE(ApplyOverrides({"train.iterations=300"}, &config).ok());
+  SessionOptions options;
+  options.queue_length = 8;
+  auto session = Session::Create("robot_p", config, options);
+  ASSERT_TRUE(session.ok());
+  std::mutex mu;
+  std::vector<int> iterations, depth;
+  constexpr int kFrames = 40;
+  const auto start = std::chrono::steady_clock::now();
+  for (int i = 0; i < kFrames; ++i) {
+    std::this_thread::sleep_until(start + std::chrono::milliseconds(50 * i));
+    // A full queue pushes back, as flow control does on a stream: the robot sends again later.
+    absl::Status submitted;
+    do {
+      submitted =
+          (*session)->Submit(uint64_t(i), Scan(0.05f * float(i)), [&](const IntegratedAck& ack) {
+            std::lock_guard<std::mutex> lock(mu);
+            iterations.push_back(ack.iterations);
+            depth.push_back(int(ack.queue_depth));
+          });
+      if (absl::IsResourceExhausted(submitted))
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    } while (absl::IsResourceExhausted(submitted));
+    ASSERT_TRUE(submitted.ok()) << submitted;
+  }
+  (*session)->Drain();
+  ASSERT_EQ(iterations.size(), size_t(kFrames));
+  // The second half, once the pace and the costs are known.
+  std::vector<int> it(iterations.begin() + kFrames / 2, iterations.end());
+  std::vector<int> dp(depth.begin() + kFrames / 2, depth.end());
+  std::sort(it.begin(), it.end());
+  std::sort(dp.begin(), dp.end());
+  EXPECT_LE(dp[dp.size() / 2], 1) << "median queue depth";
+  EXPECT_GT(it[it.size() / 2], config.train.min_iterations);
+  EXPECT_LT(it[it.size() / 2], config.train.iterations);
 }
 
 TEST(SessionTest, CloseDrainsEveryAcceptedScanThenRefuses) {
