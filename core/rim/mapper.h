@@ -238,6 +238,10 @@ class Mapper {
   // frame's points or iterations without the frame counted, nor an iteration half done (its
   // sampler drawn, its step not taken). Order: save_mu_, refresh_mu_, frame_mu_, mu_.
   mutable std::mutex frame_mu_;
+  // The point buffer and the deferred rays, which a frame's preprocessing changes under the shared
+  // mu_ (beside readers): held over those changes, by Stats() to read their sizes, and by a
+  // distance refresh over the deferred rays. After frame_mu_ and mu_ in the lock order.
+  mutable std::mutex aux_mu_;
   // One Save() at a time, whatever the directory: overlapping saves picked the same checkpoint
   // folder, or pruned each other's (mapper_persistence.cc).
   mutable std::mutex save_mu_;

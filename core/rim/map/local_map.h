@@ -64,6 +64,12 @@ class LocalMap {
     int32_t adam_steps(int64_t slot) const { return steps_[slot]; }
     uint8_t& flags(int64_t slot) { return flags_[slot]; }
     uint8_t flags(int64_t slot) const { return flags_[slot]; }
+    // The flags as a reader holding the map's lock shared reads them: a frame's marking sets bits
+    // under the shared lock too (MarkScan, with atomic ORs), so such a reader loads them
+    // atomically. Relaxed: a bit set a moment earlier or later changes no answer's meaning.
+    uint8_t flags_shared(int64_t slot) const {
+      return __atomic_load_n(&flags_[slot], __ATOMIC_RELAXED);
+    }
     // Whether the slot holds anything worth keeping: loaded or marked data (kHasData), or an
     // optimiser update (a step count). The training step sets no flag, so that its pass over
     // the touched rows does not write one more random line per row.

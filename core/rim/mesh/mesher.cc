@@ -404,7 +404,7 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
         const int64_t row = map.Slot(0, Int3(x, y, lo.z())) - PosMod(lo.z(), dims.z());
         int sz = PosMod(lo.z(), dims.z());
         for (int z = lo.z(); z <= hi.z(); ++z) {
-          if (grid.flags(row + sz) & LocalMap::kObserved) out.emplace_back(x, y, z);
+          if (grid.flags_shared(row + sz) & LocalMap::kObserved) out.emplace_back(x, y, z);
           if (++sz == dims.z()) sz = 0;
         }
       }

@@ -199,7 +199,8 @@ const float* FeatureReader::Get(int level, const Int3& g) {
 }
 
 uint8_t FeatureReader::ObservedBits(const Int3& g0) {
-  if (map_.InBox(0, g0)) return map_.level(0).flags(map_.Slot(0, g0)) & LocalMap::kObservedBits;
+  if (map_.InBox(0, g0))
+    return map_.level(0).flags_shared(map_.Slot(0, g0)) & LocalMap::kObservedBits;
   const Slot s = Fetch(0, g0);
   if (s.block == nullptr) return 0;
   return s.block->observed[size_t(s.index)] & LocalMap::kObservedBits;
