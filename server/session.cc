@@ -106,9 +106,11 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
   std::lock_guard<std::mutex> lock(mu_);
   if (closing_)
     return absl::FailedPreconditionError(absl::StrCat("session ", robot_id_, " is closing"));
-  if (queue_.size() >= size_t(options_.queue_length))
+  if (queue_.size() >= size_t(options_.queue_length)) {
+    pushed_back_ = true;
     return absl::ResourceExhaustedError(absl::StrCat(
         "ingest queue of session ", robot_id_, " is full (", options_.queue_length, " scans)"));
+  }
   if (options_.lease) {
     if (absl::Status owned = options_.lease->Check(); !owned.ok()) {
       fenced_ = true;
@@ -124,13 +126,16 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
     if (options_.events) options_.events->WalAppended(robot_id_, SecondsSince(start));
   }
   ++next_index_;
-  // The robot's pace, for PacedIterations: a gap of two seconds or more is a pause, not a pace.
+  // The robot's pace, for PacedIterations: a gap of two seconds or more is a pause, not a pace,
+  // and a scan that comes after the session pushed back came at the session's pace, not the
+  // robot's (an upload throttled by a full queue would otherwise look like a slow sensor).
   const double now = SteadySeconds();
-  if (last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
+  if (!pushed_back_ && last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
     const double dt = now - last_arrival_s_;
     arrival_period_s_ = arrival_period_s_ > 0 ? 0.8 * arrival_period_s_ + 0.2 * dt : dt;
   }
   last_arrival_s_ = now;
+  pushed_back_ = false;
   last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
   has_sequence_ = true;
   queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
@@ -148,6 +153,7 @@ void Session::OnSpace(std::function<void()> fn) {
     fn();
     return;
   }
+  pushed_back_ = true;
   space_waiters_.push_back(std::move(fn));
 }
 

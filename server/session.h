@@ -224,6 +224,9 @@ class Session {
   // The robot's pace (under mu_): when the last scan was accepted, and the mean interval between
   // accepted scans (exponential average; 0 until two arrived less than 2 s apart).
   double last_arrival_s_ = -1, arrival_period_s_ = 0;
+  // Under mu_: the queue refused a scan or made a stream wait for space since the last scan was
+  // accepted.
+  bool pushed_back_ = false;
   // Trainer thread only: exponential averages of a training iteration's wall time and of the rest
   // of a frame's (slide, preprocessing, distance refreshes), and the frames they have seen.
   double iteration_s_ = 0, overhead_s_ = 0;
