@@ -130,11 +130,30 @@ TEST(SessionTest, PacedIterationsFitThePeriodAndShrinkWithTheQueue) {
 }
 
 TEST(SessionTest, ARobotAtASensorsRateKeepsItsQueueShort) {
-  // Far more iterations than a 20 Hz robot leaves room for: queued by depth alone, the queue
-  // would fill until the iterations fell far enough. Paced, the trainer plans each frame to end
-  // before the next scan, so the queue stays short and the iterations settle between the bounds.
+  // Far more iterations than the robot's interval leaves room for: queued by depth alone, the
+  // queue would fill until the iterations fell far enough. Paced, the trainer plans each frame to
+  // end before the next scan, so the queue stays short and the iterations settle between the
+  // bounds.
   MapperConfig config = SmallConfig();
   ASSERT_TRUE(ApplyOverrides({"train.iterations=300"}, &config).ok());
+  // The robot's interval: 50 ms (20 Hz), or five frames at the minimum iterations where this
+  // build is slower (a sanitizer's), so that the minimum fits with room to spare.
+  double slowest_s = 0;
+  {
+    auto mapper = Mapper::Create(config);
+    ASSERT_TRUE(mapper.ok());
+    for (int i = 0; i < 4; ++i) {
+      const auto t0 = std::chrono::steady_clock::now();
+      ASSERT_TRUE(
+          (*mapper)->IntegrateScan(Scan(0.05f * float(i)), config.train.min_iterations).ok());
+      if (i > 0)  // the first frame places the box
+        slowest_s =
+            std::max(slowest_s,
+                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+  }
+  const auto interval =
+      std::chrono::microseconds(int64_t(1e6 * std::clamp(5 * slowest_s, 0.05, 1.5)));
   SessionOptions options;
   options.queue_length = 8;
   auto session = Session::Create("robot_p", config, options);
@@ -144,7 +163,7 @@ TEST(SessionTest, ARobotAtASensorsRateKeepsItsQueueShort) {
   constexpr int kFrames = 40;
   const auto start = std::chrono::steady_clock::now();
   for (int i = 0; i < kFrames; ++i) {
-    std::this_thread::sleep_until(start + std::chrono::milliseconds(50 * i));
+    std::this_thread::sleep_until(start + i * interval);
     // A full queue pushes back, as flow control does on a stream: the robot sends again later.
     absl::Status submitted;
     do {
