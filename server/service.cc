@@ -159,7 +159,9 @@ grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* RimService::StreamScan
   if (!principal.ok()) return new RefusedBidi<rim::v1::Scan, rim::v1::ScanAck>(principal.status());
   auto slot = streams_.Acquire("StreamScans");
   if (!slot.ok()) return new RefusedBidi<rim::v1::Scan, rim::v1::ScanAck>(slot.status());
-  return NewScanStreamReactor(sessions_, limits_, *principal, *std::move(slot));
+  const auto header = ctx->client_metadata().find(kRealTimeHeader);
+  const bool real_time = header != ctx->client_metadata().end() && header->second == "1";
+  return NewScanStreamReactor(sessions_, limits_, *principal, *std::move(slot), real_time);
 }
 
 absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,

@@ -94,9 +94,14 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info);
 // Stream reactors check each message's robot id against `principal` (CheckRobot): a scan for
 // another robot is REJECTED with PERMISSION_DENIED and the stream goes on; a query for another
 // robot ends the query stream with PERMISSION_DENIED.
+// The header a client sends on StreamScans when it streams at a sensor's rate (the C++ client
+// does when StreamOptions::rate_hz > 0; clients/lib/client/session_stream.cc spells it too).
+inline constexpr char kRealTimeHeader[] = "x-rim-real-time";
+// `real_time`: the client sent kRealTimeHeader (a stream at a sensor's rate): its
+// scans count toward the session's pace (Session::Submit).
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
     SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
-    StreamLimiter::Slot slot);
+    StreamLimiter::Slot slot, bool real_time);
 // One query (unary, or one message of a query stream): points limited to max_query_points.
 absl::Status AnswerQuery(SessionManager& sessions, const ServiceLimits& limits,
                          const rim::v1::QuerySdfRequest& request,

@@ -34,11 +34,12 @@ struct Shared {
 class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck> {
  public:
   ScanStreamReactor(SessionManager* sessions, const ServiceLimits& limits,
-                    const Principal& principal, StreamLimiter::Slot slot)
+                    const Principal& principal, StreamLimiter::Slot slot, bool real_time)
       : sessions_(sessions),
         limits_(limits),
         principal_(principal),
         slot_(std::move(slot)),
+        real_time_(real_time),
         shared_(std::make_shared<Shared>()) {
     shared_->reactor = this;
     std::lock_guard<std::mutex> lock(shared_->mu);
@@ -108,12 +109,15 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     Pending& p = *pending_;
     ++awaiting_integration_;
     std::weak_ptr<Shared> weak = shared_;
-    const absl::Status s = p.session->Submit(p.sequence, p.scan, [weak](const IntegratedAck& ack) {
-      std::shared_ptr<Shared> shared = weak.lock();
-      if (!shared) return;
-      std::lock_guard<std::mutex> lock(shared->mu);
-      if (shared->reactor != nullptr) shared->reactor->OnIntegratedLocked(ack);
-    });
+    const absl::Status s = p.session->Submit(
+        p.sequence, p.scan,
+        [weak](const IntegratedAck& ack) {
+          std::shared_ptr<Shared> shared = weak.lock();
+          if (!shared) return;
+          std::lock_guard<std::mutex> lock(shared->mu);
+          if (shared->reactor != nullptr) shared->reactor->OnIntegratedLocked(ack);
+        },
+        real_time_);
     if (s.ok()) {
       if (std::find(fed_.begin(), fed_.end(), p.session) == fed_.end()) fed_.push_back(p.session);
       rim::v1::ScanAck ack = MakeAck(*p.session, p.sequence, rim::v1::ScanAck::ACCEPTED);
@@ -297,6 +301,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
   const ServiceLimits limits_;
   const Principal principal_;
   const StreamLimiter::Slot slot_;  // released when the stream is done
+  const bool real_time_;            // the client streams at a sensor's rate
   const std::shared_ptr<Shared> shared_;
 
   rim::v1::Scan in_;  // the read buffer; only the reading side touches it
@@ -318,8 +323,8 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
 
 grpc::ServerBidiReactor<rim::v1::Scan, rim::v1::ScanAck>* NewScanStreamReactor(
     SessionManager* sessions, const ServiceLimits& limits, const Principal& principal,
-    StreamLimiter::Slot slot) {
-  return new ScanStreamReactor(sessions, limits, principal, std::move(slot));
+    StreamLimiter::Slot slot, bool real_time) {
+  return new ScanStreamReactor(sessions, limits, principal, std::move(slot), real_time);
 }
 
 }  // namespace rim::server

@@ -102,7 +102,8 @@ int Session::PacedIterations(size_t queue_depth, double period_s) const {
                              t.iterations);
 }
 
-absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated) {
+absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated,
+                             bool real_time) {
   std::lock_guard<std::mutex> lock(mu_);
   if (closing_)
     return absl::FailedPreconditionError(absl::StrCat("session ", robot_id_, " is closing"));
@@ -129,12 +130,16 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
   // The robot's pace, for PacedIterations: a gap of two seconds or more is a pause, not a pace,
   // and a scan that comes after the session pushed back came at the session's pace, not the
   // robot's (an upload throttled by a full queue would otherwise look like a slow sensor).
+  // An upload (a sender that did not say it streams in real time) clears the pace: its scans come
+  // as fast as the sender makes or reads them, which on a shared machine tracks our own load.
   const double now = SteadySeconds();
-  if (!pushed_back_ && last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
+  if (!real_time) {
+    arrival_period_s_ = 0;
+  } else if (!pushed_back_ && last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
     const double dt = now - last_arrival_s_;
     arrival_period_s_ = arrival_period_s_ > 0 ? 0.8 * arrival_period_s_ + 0.2 * dt : dt;
   }
-  last_arrival_s_ = now;
+  last_arrival_s_ = real_time ? now : -1;
   pushed_back_ = false;
   last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
   has_sequence_ = true;

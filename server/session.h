@@ -111,8 +111,11 @@ class Session {
 
   // Queues a validated scan. RESOURCE_EXHAUSTED when the queue is full (nothing changed; call
   // again after OnSpace); FAILED_PRECONDITION once the session is closing. `on_integrated` runs on
-  // the trainer thread after the scan is trained.
-  absl::Status Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated);
+  // the trainer thread after the scan is trained. `real_time`: the scan comes from a stream at a
+  // sensor's rate (its sender said so): only such scans set the pace that PacedIterations trains
+  // to; any other scan (an upload) clears it, and the queue alone sets the iterations.
+  absl::Status Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated,
+                      bool real_time = false);
   // Registers a one-shot callback run (on the trainer thread) when the queue has room again.
   void OnSpace(std::function<void()> fn);
   // Saves a checkpoint of the map into `dir`, then drops log records the checkpoint covers.

@@ -167,12 +167,14 @@ TEST(SessionTest, ARobotAtASensorsRateKeepsItsQueueShort) {
     // A full queue pushes back, as flow control does on a stream: the robot sends again later.
     absl::Status submitted;
     do {
-      submitted =
-          (*session)->Submit(uint64_t(i), Scan(0.05f * float(i)), [&](const IntegratedAck& ack) {
+      submitted = (*session)->Submit(
+          uint64_t(i), Scan(0.05f * float(i)),
+          [&](const IntegratedAck& ack) {
             std::lock_guard<std::mutex> lock(mu);
             iterations.push_back(ack.iterations);
             depth.push_back(int(ack.queue_depth));
-          });
+          },
+          /*real_time=*/true);
       if (absl::IsResourceExhausted(submitted))
         std::this_thread::sleep_for(std::chrono::milliseconds(5));
     } while (absl::IsResourceExhausted(submitted));

@@ -21,6 +21,9 @@
 namespace rim {
 namespace {
 
+// Sent on StreamScans when the stream is paced at a sensor's rate (server/service.h).
+constexpr char kRealTimeHeader[] = "x-rim-real-time";
+
 // How a broken stream ends: the server or the connection gone (UNAVAILABLE), or a proxy that
 // reset the stream when the replica behind it died (CANCELLED: HTTP/2 RST_STREAM CANCEL, INTERNAL,
 // UNKNOWN). This client never cancels its own streams.
@@ -58,6 +61,9 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     grpc::ClientContext context;
     // No deadline: a stream lasts as long as the robot drives.
     c.Prepare(&context, robot_id_, std::chrono::milliseconds(0));
+    // A stream paced at a sensor's rate says so: the session then trains what keeps up with it
+    // (docs/service.md, "Sharing the cores"); an upload does not, and trains by its queue.
+    if (options.rate_hz > 0) context.AddMetadata(kRealTimeHeader, "1");
     auto stream = c.stub().StreamScans(&context);
     std::thread reader([&] {
       rim::v1::ScanAck ack;
