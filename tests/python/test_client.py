@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 import unittest
 from typing import List, Optional
 
@@ -358,6 +359,52 @@ class ClientTest(unittest.TestCase):
             self.assertIn("round 2: no change since version", twice.stdout)
         finally:
             shutil.rmtree(out, ignore_errors=True)
+
+
+class RealTimeStreamTest(unittest.TestCase):
+    """stream(real_time=True) says the scans come at a sensor's rate: the session plans each frame
+    to end before the next scan, so its queue stays short. The same scans at the same rate sent as
+    an upload are trained by the queue, which fills (the server's queue holds 8)."""
+
+    FRAMES = 30
+
+    def _stream(self, client: rim_client.Client, robot: str, iterations: int, interval_s: float,
+                real_time: bool) -> "tuple[float, List[rim_client.Ack]]":
+        overrides = dict(SMALL_SESSION, **{"train.iterations": iterations,
+                                           "train.min_iterations": 2})
+        session = client.create_session(robot, overrides=overrides)
+        poses = scene.trajectory(self.FRAMES)
+        scans = [scene.simulate_scan(pose) for pose in poses]
+
+        def sensor():  # a robot's scans, one every interval_s
+            start = time.monotonic()
+            for i, (points, pose) in enumerate(zip(scans, poses)):
+                time.sleep(max(0.0, start + i * interval_s - time.monotonic()))
+                yield points, pose
+
+        acks: List[rim_client.Ack] = []
+        summary = session.stream(sensor(), on_ack=acks.append, real_time=real_time)
+        session.close(save=False)
+        self.assertEqual(summary.integrated, self.FRAMES)
+        return summary.seconds, [a for a in acks if a.state == "INTEGRATED"]
+
+    @staticmethod
+    def _second_half_median(values: List[int]) -> int:
+        half = sorted(values[len(values) // 2:])
+        return half[len(half) // 2]
+
+    def test_real_time_stream_keeps_its_queue_short(self) -> None:
+        with rim_client.Client(SERVER.address) as client:
+            # The interval: 50 ms, or five frames at 2 iterations on a slow or busy machine.
+            seconds, _ = self._stream(client, "py_calibration", 2, 0.0, real_time=False)
+            interval_s = min(max(5 * seconds / self.FRAMES, 0.05), 1.5)
+            _, paced = self._stream(client, "py_paced", 300, interval_s, real_time=True)
+            _, upload = self._stream(client, "py_upload", 300, interval_s, real_time=False)
+        lags = [self._second_half_median([a.lag_frames for a in run]) for run in (paced, upload)]
+        note = f"interval {interval_s:.3f} s, median lag paced / upload {lags}"
+        self.assertLessEqual(lags[0], 1, note)
+        self.assertLess(self._second_half_median([a.iterations for a in paced]), 300, note)
+        self.assertGreaterEqual(lags[1], 4, note)
 
 
 class SecondSessionTest(unittest.TestCase):

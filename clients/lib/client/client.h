@@ -83,6 +83,12 @@ struct StreamOptions {
   // At most this many scans per second (a recorded sequence replayed in real time); 0: as fast as
   // the server reads them (its flow control paces the stream when training lags).
   double rate_hz = 0;
+  // Whether the scans come at a sensor's rate, as the sensor makes them: the stream then sends the
+  // `x-rim-real-time: 1` header, and the session trains what keeps up with that rate instead of
+  // training each frame by its queue (docs/service.md, "Sharing the cores"). Unset: true when
+  // rate_hz > 0. Set it for a live source that paces itself (a sensor driver feeding `source`),
+  // or to false to replay a recording at its rate and still train each frame by the queue.
+  std::optional<bool> real_time;
   // Sequence number of the first scan; the stream numbers scans consecutively from it.
   uint64_t first_sequence = 0;
   // Called for every ack (ACCEPTED, INTEGRATED, REJECTED) on the stream's reader thread.

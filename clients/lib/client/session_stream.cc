@@ -63,7 +63,7 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     c.Prepare(&context, robot_id_, std::chrono::milliseconds(0));
     // A stream paced at a sensor's rate says so: the session then trains what keeps up with it
     // (docs/service.md, "Sharing the cores"); an upload does not, and trains by its queue.
-    if (options.rate_hz > 0) context.AddMetadata(kRealTimeHeader, "1");
+    if (options.real_time.value_or(options.rate_hz > 0)) context.AddMetadata(kRealTimeHeader, "1");
     auto stream = c.stub().StreamScans(&context);
     std::thread reader([&] {
       rim::v1::ScanAck ack;

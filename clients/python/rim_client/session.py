@@ -110,7 +110,7 @@ class Session:
         return scan
 
     def stream(self, frames: Iterable[FrameLike], on_ack: Optional[Callable[[Ack], None]] = None,
-               timeout: Optional[float] = None) -> StreamSummary:
+               timeout: Optional[float] = None, real_time: bool = False) -> StreamSummary:
         """Streams scans and returns once every accepted one is integrated into the map.
 
         A scan the server refuses (NaN points, a bad pose, an empty scan) is counted in
@@ -122,6 +122,10 @@ class Session:
             frames: Frames, or tuples (points, pose) / (points, pose, timestamp_s).
             on_ack: called with every ack as it arrives (progress, lag), on this thread.
             timeout: deadline of the whole stream in seconds; None waits as long as it takes.
+            real_time: True when `frames` yields scans as a sensor makes them (a live robot): the
+                stream says so (the "x-rim-real-time: 1" header) and the session trains each
+                frame for what keeps up with the sensor's rate, so that the map stays current.
+                False (an upload of recorded scans): each frame trains by the session's queue.
 
         Raises:
             RimError: the stream failed as a whole (server gone, deadline, cancelled), or a frame
@@ -142,8 +146,10 @@ class Session:
                 failures.append(error)
 
         start = time.monotonic()
-        call = self._client._stub.StreamScans(
-            requests(), timeout=timeout, metadata=self._client._metadata(self.robot_id))
+        metadata = self._client._metadata(self.robot_id)
+        if real_time:
+            metadata.append(("x-rim-real-time", "1"))
+        call = self._client._stub.StreamScans(requests(), timeout=timeout, metadata=metadata)
         completed = False
         try:
             for message in call:

@@ -1,0 +1,108 @@
+// Pacing over the wire (docs/service.md, "Sharing the cores"): a stream that says it runs at a
+// sensor's rate (the `x-rim-real-time: 1` header, which the C++ client sends for a stream with a
+// rate) gets frames planned to end before the next scan, so its queue stays short; the same scans
+// at the same rate sent as an upload are trained by the queue, which fills. Both go through the
+// real rim_server and the real client on loopback.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "client/client.h"
+#include "support/server_process.h"
+#include "support/small_session.h"
+
+namespace rim {
+namespace {
+
+using testing_support::GroundScan;
+using testing_support::ServerProcess;
+using testing_support::ServerProcessOptions;
+
+constexpr int kQueueLength = 8;
+constexpr int kFrames = 40;
+
+// The small map with `iterations` per frame and a floor of 2.
+std::vector<std::pair<std::string, std::string>> Overrides(int iterations) {
+  auto o = testing_support::SmallMapOverrides();
+  for (auto& [key, value] : o) {
+    if (key == "train.iterations") value = std::to_string(iterations);
+    if (key == "train.min_iterations") value = "2";
+  }
+  return o;
+}
+
+struct StreamRun {
+  std::vector<int> lag, iterations;  // per INTEGRATED ack, in order
+};
+
+// Streams kFrames ground scans at `interval` into a new session with 300 iterations a frame.
+StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, bool real_time) {
+  StreamRun run;
+  EXPECT_TRUE(client->CreateSession(robot, "maicity", Overrides(300)).ok());
+  std::vector<PosedScan> scans;
+  for (int i = 0; i < kFrames; ++i) scans.push_back(GroundScan(0.05 * i));
+  std::mutex mu;
+  StreamOptions options;
+  options.rate_hz = 1.0 / interval_s;
+  options.real_time = real_time;
+  options.on_ack = [&](const rim::v1::ScanAck& ack) {
+    if (ack.state() != rim::v1::ScanAck::INTEGRATED) return;
+    std::lock_guard<std::mutex> lock(mu);
+    run.lag.push_back(int(ack.lag_frames()));
+    run.iterations.push_back(int(ack.iterations()));
+  };
+  auto summary = client->Session(robot).Stream(scans, options);
+  EXPECT_TRUE(summary.ok()) << summary.status();
+  if (summary.ok()) EXPECT_EQ(summary->integrated, uint64_t(kFrames));
+  return run;
+}
+
+// The median of the second half: once the pace and the costs are known.
+int SecondHalfMedian(std::vector<int> v) {
+  v.erase(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2));
+  std::sort(v.begin(), v.end());
+  return v.empty() ? -1 : v[v.size() / 2];
+}
+
+TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRateDoesNot) {
+  ServerProcessOptions server_options;
+  server_options.args = {"--queue-length", std::to_string(kQueueLength)};
+  auto server = ServerProcess::Start(server_options);
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok()) << client.status();
+
+  // The robot's interval: 50 ms (20 Hz), or five frames at the floor of 2 iterations on a slower
+  // build or a busy machine, so that the floor fits with room to spare.
+  ASSERT_TRUE(client->CreateSession("calibration", "maicity", Overrides(2)).ok());
+  auto calibration = client->Session("calibration").Stream(testing_support::GroundScans(8));
+  ASSERT_TRUE(calibration.ok()) << calibration.status();
+  const double frame_s = calibration->seconds / 8;
+  const double interval_s = std::clamp(5 * frame_s, 0.05, 1.5);
+
+  const StreamRun paced = StreamAt(&*client, "paced_robot", interval_s, /*real_time=*/true);
+  const StreamRun upload = StreamAt(&*client, "upload_robot", interval_s, /*real_time=*/false);
+  ASSERT_EQ(paced.lag.size(), size_t(kFrames));
+  ASSERT_EQ(upload.lag.size(), size_t(kFrames));
+
+  std::printf(
+      "interval %.3f s; paced: median lag %d, iterations %d; upload: median lag %d, "
+      "iterations %d\n",
+      interval_s, SecondHalfMedian(paced.lag), SecondHalfMedian(paced.iterations),
+      SecondHalfMedian(upload.lag), SecondHalfMedian(upload.iterations));
+  // Paced: each frame trains what fits before the next scan, well under the 300 configured.
+  EXPECT_LE(SecondHalfMedian(paced.lag), 1) << "interval " << interval_s << " s";
+  EXPECT_LT(SecondHalfMedian(paced.iterations), 300);
+  EXPECT_GT(SecondHalfMedian(paced.iterations), 2);
+  // The upload: the queue rule lowers the iterations only as the queue fills, so it runs full.
+  EXPECT_GE(SecondHalfMedian(upload.lag), kQueueLength / 2) << "interval " << interval_s << " s";
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+}  // namespace
+}  // namespace rim
