@@ -35,14 +35,28 @@ sys.exit(0 if ok else 1)
 PY
 
 # The last box of the campus preset: ±12 m about the last pose, placed in whole coarse voxels
-# (0.4 m), as MapGeometry::BoxOriginFor does.
+# (0.4 m), as MapGeometry::BoxOriginFor does. Only the faces with mapped ground on both sides are
+# checked: those an earlier box reached beyond. A face no box ever passed is the map's frontier,
+# where the mesh ends because nothing beyond it was trained (the walk's westmost pose is the last
+# one, so its box's west face is such a frontier).
 FACES="$(python3 - "$DATA/poses.txt" <<'PY'
 import math, sys
-last = [float(v) for v in open(sys.argv[1]).read().split("\n")[-2].split()]
+poses = [[float(v) for v in line.split()] for line in open(sys.argv[1]) if line.strip()]
+last = poses[-1]
 faces = []
-for axis, t in (("x", last[3]), ("y", last[7])):
-    lo = math.floor((t - 12.0) / 0.4 + 0.5) * 0.4
-    faces += ["%s=%.1f" % (axis, lo), "%s=%.1f" % (axis, lo + 24.0)]
+for axis, col in (("x", 3), ("y", 7)):
+    lo = math.floor((last[col] - 12.0) / 0.4 + 0.5) * 0.4
+    hi = lo + 24.0
+    if min(p[col] for p in poses) - 12.0 <= lo - 0.4:
+        faces.append("%s=%.1f" % (axis, lo))
+    else:
+        print("%s=%.1f: the map's frontier (no box reached beyond it), not checked" % (axis, lo),
+              file=sys.stderr)
+    if max(p[col] for p in poses) + 12.0 >= hi + 0.4:
+        faces.append("%s=%.1f" % (axis, hi))
+    else:
+        print("%s=%.1f: the map's frontier (no box reached beyond it), not checked" % (axis, hi),
+              file=sys.stderr)
 print(" ".join(faces))
 PY
 )"

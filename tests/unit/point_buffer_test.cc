@@ -96,6 +96,52 @@ TEST(PointBufferTest, TotalCapDropsRandomPoints) {
   ExpectConsistent(c);
 }
 
+// The newest frame's points (what training draws sampler.newest_share of its rays from) stay the
+// last newest() points through the bound's drops, deferred rays joining and filters.
+TEST(PointBufferTest, TheNewestFrameStaysAtTheEnd) {
+  PointBuffer buffer(Caps(/*max_points=*/120, /*per_frame=*/1000), /*seed=*/5);
+  auto frame = [](int n, float x) {
+    std::vector<Vec3f> p;
+    for (int i = 0; i < n; ++i) p.push_back(Vec3f(x, float(i), 0.f));
+    return p;
+  };
+  const std::vector<Vec3f> zeros(200, Vec3f::Zero());
+  buffer.AddFrame(frame(100, 1.f), {zeros.begin(), zeros.begin() + 100});
+  EXPECT_EQ(buffer.newest(), 100u);
+  buffer.AddFrame(frame(50, 2.f), {zeros.begin(), zeros.begin() + 50});  // 30 older points go
+  ASSERT_EQ(buffer.size(), 120u);
+  ASSERT_EQ(buffer.newest(), 50u);
+  auto tail_xs = [&] {
+    std::multiset<float> xs;
+    for (size_t i = buffer.size() - buffer.newest(); i < buffer.size(); ++i)
+      xs.insert(buffer.points()[i].x());
+    return xs;
+  };
+  const std::vector<float> twos(50, 2.f), threes(10, 3.f);
+  EXPECT_EQ(tail_xs(), std::multiset<float>(twos.begin(), twos.end()));
+  buffer.AddPoints(frame(10, 3.f), {zeros.begin(), zeros.begin() + 10});  // deferred rays join
+  ASSERT_EQ(buffer.newest(), 60u);
+  std::multiset<float> want(twos.begin(), twos.end());
+  want.insert(threes.begin(), threes.end());
+  EXPECT_EQ(tail_xs(), want);
+  size_t older_ones = 0;
+  for (size_t i = 0; i < buffer.size() - buffer.newest(); ++i)
+    older_ones += buffer.points()[i].x() == 1.f;
+  EXPECT_EQ(older_ones, 60u);
+  // A filter that drops every other point keeps the order, so the newest remain last.
+  std::vector<bool> keep(buffer.size());
+  for (size_t i = 0; i < keep.size(); ++i) keep[i] = i % 2 == 0;
+  buffer.Filter(keep);
+  EXPECT_EQ(buffer.size(), 60u);
+  EXPECT_EQ(buffer.newest(), 30u);
+  for (float x : tail_xs()) EXPECT_GE(x, 2.f);
+  // A frame alone over the bound keeps what fits, all of it the newest.
+  PointBuffer small(Caps(/*max_points=*/20, /*per_frame=*/1000), /*seed=*/6);
+  small.AddFrame(frame(30, 1.f), {zeros.begin(), zeros.begin() + 30});
+  EXPECT_EQ(small.size(), 20u);
+  EXPECT_EQ(small.newest(), 20u);
+}
+
 TEST(PointBufferTest, RemoveOutsideIsHalfOpen) {
   PointBuffer b(Caps(1000, 1000), /*seed=*/5);
   // Frame f: points (f, i, 0.5) for i in [0, 10).

@@ -84,6 +84,49 @@ TEST(SamplerTest, APoolDrawsTheSameBatch) {
   EXPECT_EQ(a.rng(), b.rng());
 }
 
+// Half the rays (sampler.newest_share) come from the points the newest frame added, the rest
+// from the whole buffer; with a share of 0 every ray is drawn uniformly, as before.
+TEST(SamplerTest, TheNewestShareOfRaysComesFromTheNewestFrame) {
+  PointBuffer buffer(BufferConfig{}, /*seed=*/1);
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> u(1.f, 8.f);
+  std::vector<Vec3f> old_p, old_o, new_p, new_o;
+  for (int i = 0; i < 1000; ++i) {  // an older frame: endpoints at x < 0
+    old_p.push_back(Vec3f(-u(rng), u(rng) - 4.5f, -1.f));
+    old_o.push_back(Vec3f::Zero());
+  }
+  for (int i = 0; i < 100; ++i) {  // the newest: endpoints at x > 0
+    new_p.push_back(Vec3f(u(rng), u(rng) - 4.5f, -1.f));
+    new_o.push_back(Vec3f::Zero());
+  }
+  buffer.AddFrame(old_p, old_o);
+  buffer.AddFrame(new_p, new_o);
+  ASSERT_EQ(buffer.newest(), 100u);
+  const Vec3d lo(-10, -10, -3), hi(10, 10, 3);
+  for (const float share : {0.5f, 0.f}) {
+    SamplerConfig config = RayConfig(2000);
+    config.newest_share = share;
+    Sampler sampler(config, 0.05f, /*seed=*/4);
+    SampleBatch batch;
+    WorkerPool pool(2);
+    sampler.Sample(buffer, OutsideRays{}, lo, hi, &batch, &pool);
+    ASSERT_EQ(batch.endpoints.size(), 2000u);
+    int newest = 0, newest_in_first_half = 0;
+    for (size_t k = 0; k < batch.endpoints.size(); ++k) {
+      const bool is_new = SampleAt(batch, size_t(batch.endpoints[k])).x() > 0;
+      newest += is_new;
+      if (k < 1000) newest_in_first_half += is_new;
+    }
+    if (share > 0) {
+      // Rays 0-999 from the newest frame; 1000 more uniform, of which 1/11 land there too.
+      EXPECT_EQ(newest_in_first_half, 1000);
+      EXPECT_NEAR(newest, 1000 + 1000 / 11, 40);
+    } else {
+      EXPECT_NEAR(newest, 2000 / 11, 40);
+    }
+  }
+}
+
 TEST(SamplerTest, KnownRayAlongX) {
   const float d = 10.f, sigma = 0.05f;
   const int rays = 4000;

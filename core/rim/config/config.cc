@@ -48,6 +48,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("sampler.free_max_ratio", c.sampler.free_max_ratio);
   v("sampler.outside_rays", c.sampler.outside_rays);
   v("sampler.outside_rays_per_iteration", c.sampler.outside_rays_per_iteration);
+  v("sampler.newest_share", c.sampler.newest_share);
   v("sampler.observed_band_m", c.sampler.observed_band_m);
   v("sampler.free_space_rays", c.sampler.free_space_rays);
   v("sampler.seed", c.sampler.seed);
@@ -173,6 +174,8 @@ absl::Status MapperConfig::Validate() const {
     return Bad("sampler.free_min_ratio", "must satisfy 0 <= free_min_ratio < free_max_ratio <= 1");
   if (sampler.outside_rays_per_iteration < 0 || sampler.outside_rays_per_iteration > 1 << 20)
     return Bad("sampler.outside_rays_per_iteration", "must be in [0, 1048576]");
+  if (!(sampler.newest_share >= 0.f && sampler.newest_share <= 1.f))
+    return Bad("sampler.newest_share", "must be in [0, 1]");
   if (sampler.free_space_rays < 0 || sampler.free_space_rays > 1 << 20)
     return Bad("sampler.free_space_rays", "must be in [0, 1048576]");
   if (!(sampler.observed_band_m > 0.f)) return Bad("sampler.observed_band_m", "must be > 0");

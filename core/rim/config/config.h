@@ -62,6 +62,12 @@ struct SamplerConfig {
   float free_max_ratio = 0.9f;
   bool outside_rays = false;  // sample free space of out-of-box rays up to the box exit
   int outside_rays_per_iteration = 512;
+  // Share of the rays_per_iteration rays drawn from the points the newest frame added to the
+  // buffer (uniformly among them); the rest are drawn uniformly from the whole buffer, as the
+  // paper does. Training replays the history and also learns the scan it just got: a frame that
+  // trains few iterations (a robot at its sensor's rate on a small machine) otherwise leaves its
+  // new surface barely trained (docs/core.md, "Training samples"). 0: uniform, as the paper.
+  float newest_share = 0.5f;
   // A training sample with |label| below this marks its finest voxel as observed (and meshed);
   // one with a larger positive label marks it as seen free (observed for queries only).
   float observed_band_m = 0.15f;

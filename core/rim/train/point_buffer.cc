@@ -24,6 +24,7 @@ void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W,
     points_.push_back(points_W[idx[i]]);
     origins_.push_back(origins_W[idx[i]]);
   }
+  newest_ = keep;
   TrimToBound();
 }
 
@@ -31,15 +32,31 @@ void PointBuffer::AddPoints(const std::vector<Vec3f>& points_W,
                             const std::vector<Vec3f>& origins_W) {
   points_.insert(points_.end(), points_W.begin(), points_W.end());
   origins_.insert(origins_.end(), origins_W.begin(), origins_W.end());
+  newest_ += points_W.size();
   TrimToBound();
 }
 
 void PointBuffer::TrimToBound() {
   while (points_.size() > size_t(config_.max_points)) {
-    std::uniform_int_distribution<size_t> pick(0, points_.size() - 1);
+    const size_t older = points_.size() - newest_;
+    if (older == 0) {  // a frame alone over the bound: drop among its own points
+      std::uniform_int_distribution<size_t> pick(0, points_.size() - 1);
+      const size_t j = pick(rng_);
+      points_[j] = points_.back();
+      origins_[j] = origins_.back();
+      points_.pop_back();
+      origins_.pop_back();
+      --newest_;
+      continue;
+    }
+    // A random older point goes: the last older point takes its place, and the last point (one
+    // of the newest) takes that one's, so the newest stay at the end.
+    std::uniform_int_distribution<size_t> pick(0, older - 1);
     const size_t j = pick(rng_);
-    points_[j] = points_.back();
-    origins_[j] = origins_.back();
+    points_[j] = points_[older - 1];
+    origins_[j] = origins_[older - 1];
+    points_[older - 1] = points_.back();
+    origins_[older - 1] = origins_.back();
     points_.pop_back();
     origins_.pop_back();
   }
@@ -55,8 +72,12 @@ void PointBuffer::RemoveOutside(const Vec3d& min_m, const Vec3d& max_m) {
 
 void PointBuffer::Filter(const std::vector<bool>& keep) {
   size_t out = 0;
+  const size_t newest_from = points_.size() - newest_;
   for (size_t i = 0; i < points_.size(); ++i) {
-    if (!keep[i]) continue;
+    if (!keep[i]) {
+      if (i >= newest_from) --newest_;
+      continue;
+    }
     points_[out] = points_[i];
     origins_[out] = origins_[i];
     ++out;
@@ -102,6 +123,7 @@ absl::Status PointBuffer::Deserialize(ByteReader* r) {
   rng_ = rng;
   points_ = std::move(points);
   origins_ = std::move(origins);
+  newest_ = 0;  // set by the next frame, before anything samples
   return absl::OkStatus();
 }
 

@@ -17,10 +17,12 @@ class PointBuffer {
   PointBuffer(const BufferConfig& config, uint64_t seed);
 
   // Adds a frame's inside points (world frame), keeping at most max_points_per_frame of them
-  // (uniform random subset), then drops random points while over max_points.
+  // (uniform random subset), then drops random older points while over max_points. The points
+  // kept start the newest frame's (newest()).
   void AddFrame(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W);
-  // Adds rays as they are (no per-frame subset), then drops random points while over max_points:
-  // deferred rays that the box has just reached (map/deferred_points.h).
+  // Adds rays as they are (no per-frame subset) to the newest frame's, then drops random older
+  // points while over max_points: deferred rays that the box has just reached
+  // (map/deferred_points.h).
   void AddPoints(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W);
   // Drops points whose endpoint left the box [min, max).
   void RemoveOutside(const Vec3d& min_m, const Vec3d& max_m);
@@ -28,6 +30,9 @@ class PointBuffer {
   void Filter(const std::vector<bool>& keep);
 
   size_t size() const { return points_.size(); }
+  // The points the newest frame added are the last newest() of points(): every removal keeps the
+  // order, and dropping for the bound never picks them. Not saved: the next frame sets it.
+  size_t newest() const { return newest_; }
   const std::vector<Vec3f>& points() const { return points_; }
   const std::vector<Vec3f>& origins() const { return origins_; }
 
@@ -41,6 +46,7 @@ class PointBuffer {
   std::mt19937_64 rng_;
   std::vector<Vec3f> points_;
   std::vector<Vec3f> origins_;
+  size_t newest_ = 0;
 };
 
 }  // namespace rim

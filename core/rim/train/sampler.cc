@@ -62,6 +62,10 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
   if (!inside && !outside_rays) return;
   const Vec3f lo = box_min_m.cast<float>() + Vec3f::Constant(kBoxMarginM);
   const Vec3f hi = box_max_m.cast<float>() - Vec3f::Constant(kBoxMarginM);
+  const int newest_rays =
+      buffer.newest() > 0
+          ? int(std::lround(double(config_.newest_share) * config_.rays_per_iteration))
+          : 0;
   uint64_t seeds[2 * kPieces];
   for (uint64_t& s : seeds) s = rng_();
   auto run = [&](int task) {
@@ -73,7 +77,9 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
       if (!inside) return;
       const int r0 = int(int64_t(config_.rays_per_iteration) * piece / kPieces);
       const int r1 = int(int64_t(config_.rays_per_iteration) * (piece + 1) / kPieces);
-      SampleInside(buffer, lo, hi, r1 - r0, &rng, &part);
+      // Rays [0, newest_rays) of the batch come from the newest frame's points.
+      const int from_newest = std::clamp(newest_rays - r0, 0, r1 - r0);
+      SampleInside(buffer, lo, hi, r1 - r0, from_newest, &rng, &part);
     } else {
       if (!outside_rays) return;
       const int r0 = int(int64_t(config_.outside_rays_per_iteration) * piece / kPieces);
@@ -110,14 +116,17 @@ inline bool Add(const Vec3f& p, float label, const Vec3f& lo, const Vec3f& hi, S
 }  // namespace
 
 void Sampler::SampleInside(const PointBuffer& buffer, const Vec3f& lo, const Vec3f& hi, int rays,
-                           FastRng* rng, SampleBatch* out) const {
+                           int from_newest, FastRng* rng, SampleBatch* out) const {
   std::normal_distribution<float> noise(0.f, sigma_m_);
   std::uniform_real_distribution<float> unit(0.f, 1.f);
   std::uniform_int_distribution<size_t> pick(0, buffer.size() - 1);
+  const size_t newest = std::min(buffer.newest(), buffer.size());
+  std::uniform_int_distribution<size_t> pick_newest(buffer.size() - std::max<size_t>(newest, 1),
+                                                    buffer.size() - 1);
   const int Ns = config_.surface_samples, Nf = config_.free_samples;
   const float a = config_.free_min_ratio, b = config_.free_max_ratio;
   for (int r = 0; r < rays; ++r) {
-    const size_t i = pick(*rng);
+    const size_t i = r < from_newest ? pick_newest(*rng) : pick(*rng);
     const Vec3f& o = buffer.origins()[i];
     const Vec3f& p = buffer.points()[i];
     const Vec3f ray = p - o;

@@ -75,7 +75,9 @@ class Sampler {
  public:
   Sampler(const SamplerConfig& config, float sigma_m, uint64_t seed);
 
-  // Draws rays_per_iteration rays uniformly from the buffer: Ns surface samples ~ N(d, σ²), Nf
+  // Draws rays_per_iteration rays: round(newest_share · N) of them uniformly from the points the
+  // buffer's newest frame added (none while it has none), the rest uniformly from the whole
+  // buffer. Along each: Ns surface samples ~ N(d, σ²), Nf
   // stratified free samples in [free_min_ratio·d, free_max_ratio·d], and the endpoint. A ray whose
   // origin is outside the box (an old ray, or a deferred one seen from afar) is clipped to it:
   // its free samples are stratified over the part of that interval inside the box. With
@@ -94,8 +96,9 @@ class Sampler {
 
  private:
   static constexpr int kPieces = 8;
+  // The first `from_newest` of the `rays` come from the buffer's newest points.
   void SampleInside(const PointBuffer& buffer, const Vec3f& lo, const Vec3f& hi, int rays,
-                    FastRng* rng, SampleBatch* out) const;
+                    int from_newest, FastRng* rng, SampleBatch* out) const;
   void SampleOutside(const OutsideRays& outside, const Vec3f& lo, const Vec3f& hi, int rays,
                      FastRng* rng, SampleBatch* out) const;
 
