@@ -116,6 +116,7 @@ json SessionJson(Session& session) {
       {"lag_frames", stats.accepted - std::min(stats.accepted, stats.integrated + stats.failed)},
       {"queue_depth", stats.queue_depth},
       {"iterations_per_frame", stats.iterations_per_frame},
+      {"rays_per_iteration", stats.rays_per_iteration},
       {"map_version", mapper.map_version},
       {"host_memory_bytes", uint64_t(mapper.local_map_bytes + mapper.submap_bytes)},
       {"submaps_active", mapper.submaps_active},

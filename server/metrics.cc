@@ -200,6 +200,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto lag = GaugeFamily("rim_training_lag_frames", "Accepted minus integrated scans");
     auto iterations =
         GaugeFamily("rim_iterations_per_frame", "Training iterations used for the last frame");
+    auto rays =
+        GaugeFamily("rim_rays_per_iteration", "Rays in each training batch of the last frame");
     auto loss = GaugeFamily("rim_training_loss", "Training loss of the last frame");
     auto submaps = GaugeFamily("rim_submaps", "Sub-maps of the global map, by state");
     auto memory = GaugeFamily("rim_session_host_memory_bytes",
@@ -216,6 +218,7 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&queue, id, double(s.queue_depth));
         AddGauge(&lag, id, double(s.accepted - s.integrated - s.failed));
         AddGauge(&iterations, id, s.iterations_per_frame);
+        AddGauge(&rays, id, s.rays_per_iteration);
         AddGauge(&loss, id, s.last_loss);
         AddGauge(&submaps, {id[0], {"state", "active"}}, m.submaps_active);
         AddGauge(&submaps, {id[0], {"state", "frozen"}}, m.submaps_frozen);
@@ -234,8 +237,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
     AddGauge(&device, {}, 0);
-    return {build,  active,     queue, lag,    iterations, loss,  submaps,
-            memory, checkpoint, wal,   budget, rss,        device};
+    return {build,   active, queue,      lag, iterations, rays, loss,
+            submaps, memory, checkpoint, wal, budget,     rss,  device};
   }
 
  private:

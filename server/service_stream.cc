@@ -223,6 +223,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     ack.set_queue_depth(uint32_t(stats.queue_depth));
     ack.set_lag_frames(stats.accepted - stats.integrated - stats.failed);
     ack.set_iterations(uint32_t(stats.iterations_per_frame));
+    ack.set_rays_per_iteration(uint32_t(stats.rays_per_iteration));
     ack.set_map_version(session.mapper().map_version());
     return ack;
   }
@@ -242,6 +243,7 @@ class ScanStreamReactor : public grpc::ServerBidiReactor<rim::v1::Scan, rim::v1:
     ack.set_queue_depth(uint32_t(integrated.queue_depth));
     ack.set_lag_frames(integrated.lag_frames);
     ack.set_iterations(uint32_t(integrated.iterations));
+    ack.set_rays_per_iteration(uint32_t(integrated.rays_per_iteration));
     ack.set_map_version(integrated.map_version);
     EnqueueLocked(std::move(ack));
     MaybeFinishLocked();

@@ -68,6 +68,7 @@ Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
   stats_.integrated = uint64_t(mapper_->frames());
   stats_.accepted = stats_.integrated;
   stats_.iterations_per_frame = mapper_->config().train.iterations;
+  stats_.rays_per_iteration = mapper_->config().sampler.rays_per_iteration;
   // The trainer below decides when the distance field is refreshed (Run).
   mapper_->set_refresh_in_frame(false);
   trainer_ = std::thread([this] { Run(); });
@@ -75,13 +76,15 @@ Session::Session(const std::string& robot_id, std::unique_ptr<Mapper> mapper,
 
 Session::~Session() { Close(); }
 
-int Session::AdaptiveIterations(size_t queue_depth) const {
+int Session::AdaptiveIterations(size_t queue_depth, int fewest, int most) const {
   const TrainConfig& t = mapper_->config().train;
-  if (queue_depth <= 1 || options_.queue_length <= 1) return t.iterations;
+  if (most < 0) most = t.iterations;
+  if (fewest < 0) fewest = std::min(t.min_iterations, most);
+  if (queue_depth <= 1 || options_.queue_length <= 1) return most;
   // Linear from the full count with one scan waiting down to the minimum with a full queue.
   const double fill = double(queue_depth - 1) / double(options_.queue_length - 1);
-  const int n = int(std::lround(t.iterations - fill * (t.iterations - t.min_iterations)));
-  return std::clamp(n, t.min_iterations, t.iterations);
+  const int n = int(std::lround(most - fill * (most - fewest)));
+  return std::clamp(n, fewest, most);
 }
 
 int PacedIterationCount(double period_s, double iteration_s, double overhead_s, size_t queue_depth,
@@ -95,11 +98,49 @@ int PacedIterationCount(double period_s, double iteration_s, double overhead_s, 
   return int(std::min(n, double(max_iterations)));
 }
 
-int Session::PacedIterations(size_t queue_depth, double period_s) const {
+double Session::IterationSeconds(int rays) const {
+  const int full = mapper_->config().sampler.rays_per_iteration;
+  const bool small = rays != full;
+  const double measured = small ? small_iteration_s_ : iteration_s_;
+  if (measured > 0) return measured;
+  // Not measured on this batch yet: the other one's, in proportion.
+  const double other = small ? iteration_s_ : small_iteration_s_;
+  const int other_rays = small ? full : mapper_->config().sampler.paced_rays_per_iteration;
+  return other > 0 && other_rays > 0 ? other * double(rays) / double(other_rays) : 0;
+}
+
+int Session::PacedIterations(size_t queue_depth, double period_s, int fewest, int most,
+                             int rays) const {
   const TrainConfig& t = mapper_->config().train;
-  if (paced_frames_ < 3) return t.iterations;  // the costs are not known yet
-  return PacedIterationCount(period_s, iteration_s_, overhead_s_, queue_depth, t.min_iterations,
-                             t.iterations);
+  if (most < 0) most = t.iterations;
+  if (fewest < 0) fewest = std::min(t.min_iterations, most);
+  if (rays <= 0) rays = mapper_->config().sampler.rays_per_iteration;
+  if (paced_frames_ < 3) return most;  // the costs are not known yet
+  return PacedIterationCount(period_s, IterationSeconds(rays), overhead_s_, queue_depth, fewest,
+                             most);
+}
+
+int Session::FrameBatch(size_t queue_depth, double period_s) {
+  const SamplerConfig& s = mapper_->config().sampler;
+  const int small = s.paced_rays_per_iteration;
+  if (!(period_s >= kMinPacedPeriodS) || small <= 0 || small == s.rays_per_iteration)
+    return s.rays_per_iteration;
+  if (paced_frames_ < 3) return small;
+  // Every 20th frame that kept the configured batch tries the small one, so that its cost is
+  // measured again once the load has changed.
+  if (++frames_on_full_batch_ >= 20) {
+    frames_on_full_batch_ = 0;
+    return small;
+  }
+  // The small batch when the period fits its floor (the configured floor's rays); otherwise the
+  // configured batch, whose floor costs less than the same rays in small batches.
+  const int fewest = mapper_->IterationBounds(small).first;
+  if (PacedIterationCount(period_s, IterationSeconds(small), overhead_s_, queue_depth, 0,
+                          1 << 20) >= fewest) {
+    frames_on_full_batch_ = 0;
+    return small;
+  }
+  return s.rays_per_iteration;
 }
 
 absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated,
@@ -360,16 +401,20 @@ void Session::Run() {
     for (auto& fn : waiters) fn();
 
     // A robot streaming in real time gets what keeps its queue short; a queue that fills anyway
-    // (a burst, an upload) takes iterations away as before.
-    const int iterations =
-        std::min(AdaptiveIterations(depth_at_start), PacedIterations(depth_at_start, period_s));
+    // (a burst, an upload) takes iterations away as before. A paced frame whose period fits
+    // enough of them trains on smaller batches (sampler.paced_rays_per_iteration), more of them
+    // in its time (docs/service.md).
+    const int rays = FrameBatch(depth_at_start, period_s);
+    const auto [fewest, most] = mapper_->IterationBounds(rays);
+    const int iterations = std::min(AdaptiveIterations(depth_at_start, fewest, most),
+                                    PacedIterations(depth_at_start, period_s, fewest, most, rays));
     const double frame_start_s = SteadySeconds();
     StageTimings timing;
     absl::Status status;
     {
       std::optional<ComputeScheduler::Lease> slot;
       if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
-      status = mapper_->IntegrateScan(item.scan, iterations, &timing);
+      status = mapper_->IntegrateScan(item.scan, iterations, &timing, rays);
       // The field's schedule (Mapper::DistanceRefreshDue: every query.refresh_frames frames, more
       // often while the map is young), held to a fifth of the session's time like the refreshes
       // below: a due refresh waits while the last one ended less than four of its durations ago,
@@ -407,12 +452,14 @@ void Session::Run() {
 
     if (status.ok() && timing.iterations > 0) {
       // The costs PacedIterations plans with: wall times, so that they include what the other
-      // threads (meshing, queries, other sessions) take from this one.
-      const double training_s =
-          timing.sample_s + timing.encode_s + timing.forward_s + timing.backward_s + timing.step_s;
+      // threads (meshing, queries, other sessions) take from this one, and what an iteration
+      // waits for between its stages (the map's lock while a planner's batch reads it).
+      const double training_s = timing.train_s;
       const double per_iteration = training_s / timing.iterations;
       const double rest = std::max(0.0, SteadySeconds() - frame_start_s - training_s);
-      iteration_s_ = paced_frames_ > 0 ? 0.8 * iteration_s_ + 0.2 * per_iteration : per_iteration;
+      double& cost =
+          rays == mapper_->config().sampler.rays_per_iteration ? iteration_s_ : small_iteration_s_;
+      cost = cost > 0 ? 0.8 * cost + 0.2 * per_iteration : per_iteration;
       overhead_s_ = paced_frames_ > 0 ? 0.8 * overhead_s_ + 0.2 * rest : rest;
       ++paced_frames_;
     }
@@ -439,11 +486,13 @@ void Session::Run() {
       stats_.last_timing = timing;
     }
     stats_.iterations_per_frame = iterations;
+    stats_.rays_per_iteration = rays;
     stats_.queue_depth = queue_.size();
     IntegratedAck ack;
     ack.sequence = item.sequence;
     ack.status = status;
     ack.iterations = iterations;
+    ack.rays_per_iteration = rays;
     ack.map_version = mapper_->map_version();
     ack.queue_depth = queue_.size();
     ack.lag_frames = stats_.accepted - stats_.integrated - stats_.failed;

@@ -58,6 +58,7 @@ struct IntegratedAck {
   uint64_t sequence = 0;
   absl::Status status;  // not OK if training this scan failed
   int iterations = 0;
+  int rays_per_iteration = 0;  // the batch of each iteration
   uint64_t map_version = 0;
   size_t queue_depth = 0;
   uint64_t lag_frames = 0;
@@ -77,6 +78,7 @@ struct SessionStats {
   int64_t wal_bytes = 0;
   size_t queue_depth = 0;
   int iterations_per_frame = 0;
+  int rays_per_iteration = 0;  // the batch of those iterations
   float last_loss = 0;
   StageTimings last_timing;
 };
@@ -136,11 +138,19 @@ class Session {
 
   // Iterations the trainer will use for the next frame, given the queue depth: the configured
   // number while the queue is short, fewer as it fills, never below train.min_iterations (§5.1).
-  int AdaptiveIterations(size_t queue_depth) const;
+  // `fewest`, `most`: the bounds, when not train.min_iterations and train.iterations (a paced
+  // frame's smaller batches, Mapper::IterationBounds).
+  int AdaptiveIterations(size_t queue_depth, int fewest = -1, int most = -1) const;
   // The most iterations that keep up with a robot streaming in real time (PacedIterationCount
   // with the robot's mean interval between scans, `period_s`, and the trainer's measured costs);
   // train.iterations until three frames have measured them.
-  int PacedIterations(size_t queue_depth, double period_s) const;
+  // `rays`: the frame's batch (0: sampler.rays_per_iteration), whose measured cost it plans with.
+  int PacedIterations(size_t queue_depth, double period_s, int fewest = -1, int most = -1,
+                      int rays = 0) const;
+  // The batch of the next frame: sampler.rays_per_iteration, or for a paced frame
+  // sampler.paced_rays_per_iteration when the period fits at least its floor of iterations
+  // (Mapper::IterationBounds), by the costs measured so far. Trainer thread only.
+  int FrameBatch(size_t queue_depth, double period_s);
 
   const std::string& robot_id() const { return robot_id_; }
   int background_nice() const { return options_.background_nice; }
@@ -232,8 +242,13 @@ class Session {
   bool pushed_back_ = false;
   // Trainer thread only: exponential averages of a training iteration's wall time and of the rest
   // of a frame's (slide, preprocessing, distance refreshes), and the frames they have seen.
-  double iteration_s_ = 0, overhead_s_ = 0;
+  // iteration_s_ on the configured batch, small_iteration_s_ on the paced one.
+  double iteration_s_ = 0, small_iteration_s_ = 0, overhead_s_ = 0;
   int paced_frames_ = 0;
+  int frames_on_full_batch_ = 0;  // paced frames in a row that kept the configured batch
+  // An iteration's cost on a batch of `rays`: measured, or the other batch's in proportion; 0
+  // while neither is known.
+  double IterationSeconds(int rays) const;
   // Trainer thread only: a refresh was skipped for the budget after the last frame; the trainer
   // makes it up once the budget allows, if no frame comes first.
   bool refresh_owed_ = false;

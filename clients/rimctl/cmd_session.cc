@@ -40,7 +40,8 @@ void PrintSession(const rim::v1::SessionInfo& s, bool with_config, std::ostream&
       << "integrated frames: " << s.integrated_frames() << "\n"
       << "map frames: " << s.map_frames() << "\n"
       << "queue depth: " << s.queue_depth() << "\n"
-      << "iterations per frame: " << s.iterations_per_frame() << "\n"
+      << "iterations per frame: " << s.iterations_per_frame() << " of " << s.rays_per_iteration()
+      << " rays\n"
       << "map version: " << s.map_version() << "\n"
       << "buffer points: " << s.buffer_points() << "\n"
       << absl::StrFormat("submaps: %u active, %u frozen, %u on disk\n", s.submaps_active(),

@@ -175,7 +175,19 @@ void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
   }
 }
 
-absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageTimings* timing) {
+std::pair<int, int> Mapper::IterationBounds(int rays_per_iteration) const {
+  const TrainConfig& t = config_.train;
+  const int configured = config_.sampler.rays_per_iteration;
+  if (rays_per_iteration <= 0 || rays_per_iteration == configured)
+    return {t.min_iterations, t.iterations};
+  const double k = double(configured) / double(rays_per_iteration);
+  const int most = t.iterations > 0 ? std::max(1, int(std::lround(t.iterations * k))) : 0;
+  const int fewest = std::min(most, int(std::lround(t.min_iterations * k)));
+  return {fewest, most};
+}
+
+absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageTimings* timing,
+                                   int rays_per_iteration) {
   RIM_RETURN_IF_ERROR(ValidateScan(scan));
   StageTimings t;
   const double start = Now();
@@ -201,18 +213,20 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     Preprocess(scan, moved);
     t.preprocess_s = Now() - t1;
   }
-  int n_iter = config_.train.iterations;
-  if (iterations >= 0) n_iter = std::clamp(iterations, config_.train.min_iterations, n_iter);
+  const auto [fewest, most] = IterationBounds(rays_per_iteration);
+  const int rays = rays_per_iteration > 0 ? rays_per_iteration : config_.sampler.rays_per_iteration;
+  const int n_iter = iterations >= 0 ? std::clamp(iterations, fewest, most) : most;
   const bool train_decoder = frames_ < config_.decoder.freeze_after_frames;
   IterationTiming it;
   double loss_sum = 0;
+  const double train_start = Now();
   for (int i = 0; i < n_iter; ++i) {
     // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
     // and takes it alone only to write. Nothing else writes the map, so the writes find it as the
     // reads left it.
     {
       std::shared_lock lock(mu_);
-      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it));
+      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it, rays));
     }
     std::unique_lock lock(mu_);
     auto loss = trainer_->Apply(train_decoder, &it);
@@ -220,6 +234,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     loss_sum += *loss;
     map_version_.fetch_add(1);
   }
+  t.train_s = Now() - train_start;
   {
     std::unique_lock lock(mu_);
     ++frames_;
@@ -242,6 +257,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   t.backward_s = it.backward_s;
   t.step_s = it.step_s;
   t.iterations = n_iter;
+  t.rays_per_iteration = rays;
   t.loss = n_iter > 0 ? float(loss_sum / n_iter) : 0.f;
   t.total_s = Now() - start;
   if (timing) *timing = t;

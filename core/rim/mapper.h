@@ -10,6 +10,7 @@
 #include <mutex>
 #include <shared_mutex>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -42,8 +43,12 @@ struct StageTimings {
   double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0,
          step_s = 0, total_s = 0;
   double distance_s = 0;  // distance field refresh (every query.refresh_frames frames)
+  // Wall time of the iterations: the stages above from sample to step, and what they waited for
+  // (the map's lock, the training threads) between them.
+  double train_s = 0;
   int iterations = 0;
-  float loss = 0;  // mean over the frame's iterations
+  int rays_per_iteration = 0;  // the frame's batch (not summed)
+  float loss = 0;              // mean over the frame's iterations
 
   // Adds another frame's times (loss is not summed).
   StageTimings& operator+=(const StageTimings& o) {
@@ -56,6 +61,7 @@ struct StageTimings {
     step_s += o.step_s;
     total_s += o.total_s;
     distance_s += o.distance_s;
+    train_s += o.train_s;
     iterations += o.iterations;
     return *this;
   }
@@ -124,8 +130,16 @@ class Mapper {
 
   // Validates and integrates one posed scan (Alg. 1). iterations < 0: the configured number;
   // otherwise clamped to [train.min_iterations, train.iterations]. Invalid input changes nothing.
+  // `rays_per_iteration` > 0 trains on batches of that many rays (a paced frame's,
+  // sampler.paced_rays_per_iteration), with both iteration bounds scaled by
+  // sampler.rays_per_iteration / rays_per_iteration (IterationBounds).
   absl::Status IntegrateScan(const PosedScan& scan, int iterations = -1,
-                             StageTimings* timing = nullptr);
+                             StageTimings* timing = nullptr, int rays_per_iteration = 0);
+  // The [fewest, most] iterations of a frame trained on batches of `rays_per_iteration` rays
+  // (0: sampler.rays_per_iteration): train.min_iterations and train.iterations scaled so that a
+  // frame trains as many rays as with the configured batch, rounded, the most at least 1 when
+  // train.iterations is.
+  std::pair<int, int> IterationBounds(int rays_per_iteration) const;
 
   // Signed Euclidean distance to the nearest mapped surface (and its gradient) at n points xyz
   // (world frame), anywhere in the mapped world: the metric distance field (distance_field.h),

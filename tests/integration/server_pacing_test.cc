@@ -2,7 +2,8 @@
 // sensor's rate (the `x-rim-real-time: 1` header, which the C++ client sends for a stream with a
 // rate) gets frames planned to end before the next scan, so its queue stays short; the same scans
 // at the same rate sent as an upload are trained by the queue, which fills. Both go through the
-// real rim_server and the real client on loopback.
+// real rim_server and the real client on loopback. A paced frame trains on
+// sampler.paced_rays_per_iteration rays an iteration, an upload's on sampler.rays_per_iteration.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -26,18 +27,22 @@ using testing_support::ServerProcessOptions;
 constexpr int kQueueLength = 8;
 constexpr int kFrames = 40;
 
-// The small map with `iterations` per frame and a floor of 2.
+// The small map with `iterations` per frame of 512 rays and a floor of 2; a paced frame's
+// batches of 128 rays, so four times as many of them: [8, 4 × iterations].
+constexpr int kRays = 512, kPacedRays = 128;
 std::vector<std::pair<std::string, std::string>> Overrides(int iterations) {
   auto o = testing_support::SmallMapOverrides();
   for (auto& [key, value] : o) {
     if (key == "train.iterations") value = std::to_string(iterations);
     if (key == "train.min_iterations") value = "2";
+    if (key == "sampler.rays_per_iteration") value = std::to_string(kRays);
   }
+  o.emplace_back("sampler.paced_rays_per_iteration", std::to_string(kPacedRays));
   return o;
 }
 
 struct StreamRun {
-  std::vector<int> lag, iterations;  // per INTEGRATED ack, in order
+  std::vector<int> lag, iterations, rays;  // per INTEGRATED ack, in order
 };
 
 // Streams kFrames ground scans at `interval` into a new session with 300 iterations a frame.
@@ -55,6 +60,7 @@ StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, 
     std::lock_guard<std::mutex> lock(mu);
     run.lag.push_back(int(ack.lag_frames()));
     run.iterations.push_back(int(ack.iterations()));
+    run.rays.push_back(int(ack.rays_per_iteration()));
   };
   auto summary = client->Session(robot).Stream(scans, options);
   EXPECT_TRUE(summary.ok()) << summary.status();
@@ -95,12 +101,56 @@ TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRate
       "iterations %d\n",
       interval_s, SecondHalfMedian(paced.lag), SecondHalfMedian(paced.iterations),
       SecondHalfMedian(upload.lag), SecondHalfMedian(upload.iterations));
-  // Paced: each frame trains what fits before the next scan, well under the 300 configured.
+  // Paced: each frame trains what fits before the next scan, on the smaller batches, well under
+  // the 4 × 300 configured and above the floor of 4 × 2.
   EXPECT_LE(SecondHalfMedian(paced.lag), 1) << "interval " << interval_s << " s";
-  EXPECT_LT(SecondHalfMedian(paced.iterations), 300);
-  EXPECT_GT(SecondHalfMedian(paced.iterations), 2);
-  // The upload: the queue rule lowers the iterations only as the queue fills, so it runs full.
+  EXPECT_EQ(SecondHalfMedian(paced.rays), kPacedRays);
+  EXPECT_LT(SecondHalfMedian(paced.iterations), 4 * 300);
+  EXPECT_GT(SecondHalfMedian(paced.iterations), 4 * 2);
+  // The upload: the queue rule lowers the iterations only as the queue fills, so it runs full,
+  // on the configured batch.
   EXPECT_GE(SecondHalfMedian(upload.lag), kQueueLength / 2) << "interval " << interval_s << " s";
+  for (int rays : upload.rays) EXPECT_EQ(rays, kRays);
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+// A robot whose period cannot fit the small batches' floor (8 iterations of 8192 rays here, far
+// more than 50 ms on any machine this runs on) keeps the configured batch at its own floor of 2,
+// which costs less, trying the small one again only every 20th frame.
+TEST(ServerPacingTest, ASessionAtItsFloorKeepsTheConfiguredBatch) {
+  auto server = ServerProcess::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok()) << client.status();
+  auto overrides = Overrides(2);
+  for (auto& [key, value] : overrides) {
+    if (key == "sampler.rays_per_iteration") value = "32768";
+    if (key == "sampler.paced_rays_per_iteration") value = "8192";
+  }
+  ASSERT_TRUE(client->CreateSession("busy_robot", "maicity", overrides).ok());
+  std::vector<PosedScan> scans;
+  for (int i = 0; i < 16; ++i) scans.push_back(GroundScan(0.05 * i));
+  std::mutex mu;
+  std::vector<int> rays, iterations;
+  StreamOptions options;
+  options.rate_hz = 20;
+  options.on_ack = [&](const rim::v1::ScanAck& ack) {
+    if (ack.state() != rim::v1::ScanAck::INTEGRATED) return;
+    std::lock_guard<std::mutex> lock(mu);
+    rays.push_back(int(ack.rays_per_iteration()));
+    iterations.push_back(int(ack.iterations()));
+  };
+  auto summary = client->Session("busy_robot").Stream(scans, options);
+  ASSERT_TRUE(summary.ok()) << summary.status();
+  ASSERT_EQ(rays.size(), scans.size());
+  std::printf("rays per iteration:");
+  for (int r : rays) std::printf(" %d", r);
+  std::printf("\n");
+  // Frames 4 to 16 (once three frames measured the costs): the configured batch at its floor.
+  for (size_t k = 4; k < rays.size(); ++k) {
+    EXPECT_EQ(rays[k], 32768) << "frame " << k;
+    EXPECT_EQ(iterations[k], 2) << "frame " << k;
+  }
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }
 

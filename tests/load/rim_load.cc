@@ -14,6 +14,8 @@
 // The summary lines keep these forms, which scripts parse:
 //   "  ROBOT: sent N, accepted N, integrated N (N frames/s), rejected N, lowest iterations/frame
 //    N, median iterations/frame N, largest lag N frames"
+//   "  ROBOT: median rays/frame N" (iterations × the batch each trained on: a robot streaming
+//    in real time trains on sampler.paced_rays_per_iteration rays an iteration)
 //   "  queries: N batches, N points, latency p50 N ms, p99 N ms, N % within the bound"
 // The last figure is the share of the planners' points that read a surface within the session's
 // query.max_distance_m (not saturated). A query's cost grows with it: a planner asking around
@@ -26,6 +28,10 @@
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
 //                 [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]
+//                 [--set key=value ...]
+//
+// --set overrides a config value of the robots' maicity sessions (as `rimctl session create
+// --set`), to compare settings under the same load; repeatable.
 //
 // The robots drive the city's loop road, 1 m per frame. --frames F city frames are cast before
 // the run (default: enough for the whole run at --rate, at most 600); a robot that reaches the
@@ -56,6 +62,7 @@ struct Options {
   int frames = 0;  // 0: rate x duration, at most 600
   double rate_hz = 10, duration_s = 60;
   double query_rate_hz = 0;  // batches per second per planner; 0: back to back
+  std::vector<std::pair<std::string, std::string>> overrides;  // --set key=value
 };
 
 bool Loopback(const std::string& address) {
@@ -84,6 +91,8 @@ bool Parse(int argc, char** argv, Options* o) {
       o->frames = std::atoi(v.c_str());
     else if (k == "--query-rate")
       o->query_rate_hz = std::atof(v.c_str());
+    else if (k == "--set" && v.find('=') != std::string::npos && v.find('=') > 0)
+      o->overrides.emplace_back(v.substr(0, v.find('=')), v.substr(v.find('=') + 1));
     else
       return false;
   }
@@ -108,7 +117,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr,
                  "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
                  "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
-                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back]\n");
+                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--set key=value ...]\n");
     return 2;
   }
   if (!Loopback(o.server)) {
@@ -141,6 +150,8 @@ int main(int argc, char** argv) {
   std::vector<uint32_t> min_iterations(o.robots, 1u << 30);
   std::vector<uint64_t> max_lag(o.robots, 0);
   std::vector<std::vector<double>> iterations(o.robots);
+  // Rays trained per frame (iterations × the ack's batch): comparable across batch sizes.
+  std::vector<std::vector<double>> rays_per_frame(o.robots);
   // Per robot: the map version of each INTEGRATED ack and when it arrived, in arrival order
   // (map versions only grow).
   using Clock = std::chrono::steady_clock;
@@ -150,7 +161,7 @@ int main(int argc, char** argv) {
 
   for (int r = 0; r < o.robots; ++r) {
     robots.push_back("load_robot_" + std::to_string(r));
-    auto created = client->CreateSession(robots.back(), "maicity");
+    auto created = client->CreateSession(robots.back(), "maicity", o.overrides);
     if (!created.ok()) {
       std::fprintf(stderr, "rim_load: create %s: %s\n", robots.back().c_str(),
                    std::string(created.status().message()).c_str());
@@ -170,6 +181,7 @@ int main(int argc, char** argv) {
         if (ack.state() == rim::v1::ScanAck::INTEGRATED) {
           min_iterations[r] = std::min(min_iterations[r], ack.iterations());
           iterations[r].push_back(ack.iterations());
+          rays_per_frame[r].push_back(double(ack.iterations()) * ack.rays_per_iteration());
           integrations[r].emplace_back(ack.map_version(), Clock::now());
         }
         max_lag[r] = std::max(max_lag[r], ack.lag_frames());
@@ -274,6 +286,8 @@ int main(int argc, char** argv) {
         (unsigned long long)s.integrated, s.seconds > 0 ? s.integrated / s.seconds : 0.0,
         (unsigned long long)s.rejected, min_iterations[r] == (1u << 30) ? 0 : min_iterations[r],
         Quantile(iterations[r], 0.5), (unsigned long long)max_lag[r]);
+    std::printf("  %s: median rays/frame %.0f\n", robots[r].c_str(),
+                Quantile(rays_per_frame[r], 0.5));
   }
   std::printf(
       "  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms, %.1f %% within the "

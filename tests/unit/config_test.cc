@@ -56,6 +56,7 @@ TEST(ConfigTest, PresetValuesFollowTheDesignTable) {
   EXPECT_FALSE(m.buffer.outlier_removal);
   EXPECT_EQ(m.sampler.rays_per_iteration, 2048);
   EXPECT_FLOAT_EQ(m.sampler.newest_share, 0.5f);
+  EXPECT_EQ(m.sampler.paced_rays_per_iteration, 512);
   EXPECT_EQ(m.buffer.max_points, 1000000);
   EXPECT_EQ(m.buffer.max_points_per_frame, 10000);
   EXPECT_EQ(m.decoder.freeze_after_frames, 20);
@@ -148,6 +149,8 @@ TEST(ConfigTest, BadOverridesAreInvalidArgumentNamingTheFieldAndChangeNothing) {
       {{"sampler.newest_share=1.5"}, "sampler.newest_share"},
       {{"sampler.newest_share=-0.1"}, "sampler.newest_share"},
       {{"sampler.newest_share=nan"}, "sampler.newest_share"},
+      {{"sampler.paced_rays_per_iteration=-1"}, "sampler.paced_rays_per_iteration"},
+      {{"sampler.paced_rays_per_iteration=2000000"}, "sampler.paced_rays_per_iteration"},
       {{"buffer.max_points=0"}, "buffer.max_points"},
       {{"submap.block_size=1"}, "submap.block_size"},
       {{"submap.host_budget_bytes=1000"}, "submap.spill_dir"},

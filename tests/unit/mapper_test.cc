@@ -186,6 +186,26 @@ TEST_F(MapperTest, IterationsAreClampedToConfiguredRange) {
   EXPECT_GE(t.total_s, t.sample_s + t.encode_s + t.forward_s + t.backward_s + t.step_s);
 }
 
+// A paced frame's smaller batches (sampler.rays_per_iteration 256 here): the bounds scale so
+// that a frame trains the same rays at most and at least.
+TEST_F(MapperTest, SmallerBatchesScaleTheIterationBounds) {
+  EXPECT_EQ(mapper_->IterationBounds(0), std::make_pair(2, 3));
+  EXPECT_EQ(mapper_->IterationBounds(256), std::make_pair(2, 3));
+  EXPECT_EQ(mapper_->IterationBounds(64), std::make_pair(8, 12));
+  EXPECT_EQ(mapper_->IterationBounds(512), std::make_pair(1, 2));  // 1.5 rounds to 2
+  StageTimings t;
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 3), 100, &t, 64).ok());
+  EXPECT_EQ(t.iterations, 12);
+  EXPECT_EQ(t.rays_per_iteration, 64);
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 4), 1, &t, 64).ok());
+  EXPECT_EQ(t.iterations, 8);
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 5), -1, &t, 64).ok());
+  EXPECT_EQ(t.iterations, 12);
+  ASSERT_TRUE(mapper_->IntegrateScan(ScanAt(scene_, 0.f, 6), -1, &t).ok());
+  EXPECT_EQ(t.iterations, 3);
+  EXPECT_EQ(t.rays_per_iteration, 256);
+}
+
 TEST_F(MapperTest, TilesReportOnlyChangesSinceAVersion) {
   const uint64_t v = mapper_->map_version();
   EXPECT_FALSE(mapper_->ListTiles(0).empty());

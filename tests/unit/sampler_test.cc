@@ -127,6 +127,53 @@ TEST(SamplerTest, TheNewestShareOfRaysComesFromTheNewestFrame) {
   }
 }
 
+// A paced frame's batch (Sample's `rays`): that many rays, the newest share of them from the
+// newest frame, outside rays in proportion; the generator moves on as for a full batch, so the
+// batches after it do not depend on the size of the ones before.
+TEST(SamplerTest, ASmallerBatchKeepsItsSharesAndTheGeneratorsPace) {
+  PointBuffer buffer(BufferConfig{}, /*seed=*/1);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> u(1.f, 8.f);
+  std::vector<Vec3f> old_p, new_p, origins(100, Vec3f::Zero());
+  for (int i = 0; i < 100; ++i) old_p.push_back(Vec3f(-u(rng), u(rng) - 4.5f, -1.f));
+  for (int i = 0; i < 100; ++i) new_p.push_back(Vec3f(u(rng), u(rng) - 4.5f, -1.f));
+  buffer.AddFrame(old_p, origins);
+  buffer.AddFrame(new_p, origins);
+  OutsideRays outside;
+  outside.points_W = {Vec3f(0.f, 40.f, 2.f)};  // beyond the box, seen from inside it
+  outside.origins_W = {Vec3f(0.f, 0.f, 0.f)};
+  const Vec3d lo(-10, -10, -3), hi(10, 10, 3);
+  SamplerConfig config = RayConfig(2000);
+  config.outside_rays = true;
+  config.outside_rays_per_iteration = 1000;
+  const int Nf = config.free_samples;
+  auto outside_samples = [](const SampleBatch& b) {
+    size_t n = 0;
+    for (size_t i = 0; i < b.size(); ++i) n += b.labels[i] > 25.f;  // inside rays: under 10
+    return n;
+  };
+
+  Sampler small(config, 0.05f, /*seed=*/9), full(config, 0.05f, /*seed=*/9);
+  WorkerPool pool(2);
+  SampleBatch a, b;
+  small.Sample(buffer, outside, lo, hi, &a, &pool, /*rays=*/500);
+  full.Sample(buffer, outside, lo, hi, &b, &pool);
+  ASSERT_EQ(a.endpoints.size(), 500u);
+  ASSERT_EQ(b.endpoints.size(), 2000u);
+  int newest_first = 0;
+  for (size_t k = 0; k < 250; ++k) newest_first += SampleAt(a, size_t(a.endpoints[k])).x() > 0;
+  EXPECT_EQ(newest_first, 250);  // newest_share 0.5 of 500
+  // 250 outside rays against 1000, Nf samples each (none leaves this box).
+  EXPECT_EQ(outside_samples(a), size_t(250 * Nf));
+  EXPECT_EQ(outside_samples(b), size_t(1000 * Nf));
+
+  // The next full batches are the same whichever batch came before.
+  small.Sample(buffer, outside, lo, hi, &a, &pool);
+  full.Sample(buffer, outside, lo, hi, &b, &pool);
+  EXPECT_EQ(a.xyz, b.xyz);
+  EXPECT_EQ(a.labels, b.labels);
+}
+
 TEST(SamplerTest, KnownRayAlongX) {
   const float d = 10.f, sigma = 0.05f;
   const int rays = 4000;

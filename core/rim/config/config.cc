@@ -42,6 +42,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("train.step", c.train.step);
   v("train.threads", c.train.threads);
   v("sampler.rays_per_iteration", c.sampler.rays_per_iteration);
+  v("sampler.paced_rays_per_iteration", c.sampler.paced_rays_per_iteration);
   v("sampler.surface_samples", c.sampler.surface_samples);
   v("sampler.free_samples", c.sampler.free_samples);
   v("sampler.free_min_ratio", c.sampler.free_min_ratio);
@@ -165,6 +166,8 @@ absl::Status MapperConfig::Validate() const {
 
   if (sampler.rays_per_iteration < 1 || sampler.rays_per_iteration > 1 << 20)
     return Bad("sampler.rays_per_iteration", "must be in [1, 1048576]");
+  if (sampler.paced_rays_per_iteration < 0 || sampler.paced_rays_per_iteration > 1 << 20)
+    return Bad("sampler.paced_rays_per_iteration", "must be in [0, 1048576]");
   if (sampler.surface_samples < 0 || sampler.surface_samples > 64)
     return Bad("sampler.surface_samples", "must be in [0, 64]");
   if (sampler.free_samples < 0 || sampler.free_samples > 64)

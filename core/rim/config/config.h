@@ -56,8 +56,15 @@ struct TrainConfig {
 // Ray sampling (§3.4 step 3, "Sample").
 struct SamplerConfig {
   int rays_per_iteration = 2048;  // N
-  int surface_samples = 3;        // Ns ~ N(d, σ²)
-  int free_samples = 3;           // Nf, stratified in [free_min_ratio·d, free_max_ratio·d]
+  // Rays per iteration of a frame that a robot streams in real time (the server's paced frames),
+  // whose training is bounded by the robot's rate rather than by train.iterations: within the
+  // same time, more iterations of smaller batches learn more (docs/core.md, "Batches of a paced
+  // frame"). The iteration bounds scale to keep the rays per frame: train.iterations ×
+  // rays_per_iteration / paced_rays_per_iteration at most, likewise the minimum; outside rays
+  // scale by the same ratio. 0: rays_per_iteration, as for any other frame.
+  int paced_rays_per_iteration = 512;
+  int surface_samples = 3;  // Ns ~ N(d, σ²)
+  int free_samples = 3;     // Nf, stratified in [free_min_ratio·d, free_max_ratio·d]
   float free_min_ratio = 0.3f;
   float free_max_ratio = 0.9f;
   bool outside_rays = false;  // sample free space of out-of-box rays up to the box exit

@@ -52,8 +52,13 @@ Sampler::Sampler(const SamplerConfig& config, float sigma_m, uint64_t seed)
     : config_(config), sigma_m_(sigma_m), rng_(seed) {}
 
 void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, const Vec3d& box_min_m,
-                     const Vec3d& box_max_m, SampleBatch* out, WorkerPool* pool) {
+                     const Vec3d& box_max_m, SampleBatch* out, WorkerPool* pool, int rays) {
   out->Clear();
+  // The batch's ray counts: the configured ones, or `rays` with the outside rays in proportion.
+  const int inside_n = rays > 0 ? rays : config_.rays_per_iteration;
+  const int outside_n = rays > 0 ? int(std::lround(double(config_.outside_rays_per_iteration) *
+                                                   rays / double(config_.rays_per_iteration)))
+                                 : config_.outside_rays_per_iteration;
   // Fixed pieces, each with a generator seeded from rng_ in order: the samples are the same for
   // any number of threads, and rng_ (what checkpoints keep) advances by the same draws.
   const bool inside = buffer.size() > 0;
@@ -63,9 +68,7 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
   const Vec3f lo = box_min_m.cast<float>() + Vec3f::Constant(kBoxMarginM);
   const Vec3f hi = box_max_m.cast<float>() - Vec3f::Constant(kBoxMarginM);
   const int newest_rays =
-      buffer.newest() > 0
-          ? int(std::lround(double(config_.newest_share) * config_.rays_per_iteration))
-          : 0;
+      buffer.newest() > 0 ? int(std::lround(double(config_.newest_share) * inside_n)) : 0;
   uint64_t seeds[2 * kPieces];
   for (uint64_t& s : seeds) s = rng_();
   auto run = [&](int task) {
@@ -75,19 +78,23 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
     FastRng rng(seeds[task]);
     if (task < kPieces) {
       if (!inside) return;
-      const int r0 = int(int64_t(config_.rays_per_iteration) * piece / kPieces);
-      const int r1 = int(int64_t(config_.rays_per_iteration) * (piece + 1) / kPieces);
+      const int r0 = int(int64_t(inside_n) * piece / kPieces);
+      const int r1 = int(int64_t(inside_n) * (piece + 1) / kPieces);
       // Rays [0, newest_rays) of the batch come from the newest frame's points.
       const int from_newest = std::clamp(newest_rays - r0, 0, r1 - r0);
       SampleInside(buffer, lo, hi, r1 - r0, from_newest, &rng, &part);
     } else {
       if (!outside_rays) return;
-      const int r0 = int(int64_t(config_.outside_rays_per_iteration) * piece / kPieces);
-      const int r1 = int(int64_t(config_.outside_rays_per_iteration) * (piece + 1) / kPieces);
+      const int r0 = int(int64_t(outside_n) * piece / kPieces);
+      const int r1 = int(int64_t(outside_n) * (piece + 1) / kPieces);
       SampleOutside(outside, lo, hi, r1 - r0, &rng, &part);
     }
   };
-  if (pool != nullptr && pool->threads() > 1) {
+  // A small batch (a paced frame's) is drawn on this thread: handing its pieces to the pool
+  // cost more than drawing them under load (sampling went from 1.5 to 3.3 s of a 30 s run at the
+  // target load when 2048-ray batches became four times as many 512-ray ones, BENCHMARK.md).
+  const int drawn = (inside ? inside_n : 0) + (outside_rays ? outside_n : 0);
+  if (pool != nullptr && pool->threads() > 1 && drawn >= kPoolMinRays) {
     pool->Run(2 * kPieces, run);
   } else {
     for (int t = 0; t < 2 * kPieces; ++t) run(t);

@@ -88,14 +88,20 @@ class Sampler {
   // The rays are drawn in kPieces fixed pieces (inside and outside rays each), each with its own
   // generator seeded from rng(); with a pool the pieces run on its threads. The batch is the same
   // with or without one, and for any number of threads.
+  //
+  // `rays` > 0 draws that many rays instead of rays_per_iteration (a paced frame's batch,
+  // paced_rays_per_iteration), and outside rays in the same proportion to
+  // outside_rays_per_iteration; rng() advances by the same draws either way.
   void Sample(const PointBuffer& buffer, const OutsideRays& outside, const Vec3d& box_min_m,
-              const Vec3d& box_max_m, SampleBatch* out, WorkerPool* pool = nullptr);
+              const Vec3d& box_max_m, SampleBatch* out, WorkerPool* pool = nullptr, int rays = 0);
 
   // The generator every batch starts from (what a checkpoint keeps).
   std::mt19937_64& rng() { return rng_; }
 
  private:
   static constexpr int kPieces = 8;
+  // Batches of fewer rays are drawn without the pool (the same batch either way).
+  static constexpr int kPoolMinRays = 1024;
   // The first `from_newest` of the `rays` come from the buffer's newest points.
   void SampleInside(const PointBuffer& buffer, const Vec3f& lo, const Vec3f& hi, int rays,
                     int from_newest, FastRng* rng, SampleBatch* out) const;

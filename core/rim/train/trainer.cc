@@ -66,13 +66,13 @@ absl::StatusOr<float> Trainer::Iterate(const PointBuffer& buffer, const OutsideR
 }
 
 absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outside,
-                              bool train_decoder, IterationTiming* timing) {
+                              bool train_decoder, IterationTiming* timing, int rays) {
   if (!grad_ready_) {
     grad_.Reset(*map_);
     grad_ready_ = true;
   }
   const double t0 = Now();
-  sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_);
+  sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_, rays);
   if (timing) timing->sample_s += Now() - t0;
   return PrepareBatch(train_decoder, timing);
 }

@@ -41,8 +41,9 @@ class Trainer {
   // the buffer and the outside rays and writes only the trainer's own state, so other readers may
   // run beside it. Apply writes: the features' Adam step, the observed flags, the decoder's step;
   // it needs the map alone. Iterate is Prepare then Apply, with the same bits.
+  // `rays` > 0: a batch of that many rays (Sampler::Sample).
   absl::Status Prepare(const PointBuffer& buffer, const OutsideRays& outside, bool train_decoder,
-                       IterationTiming* timing);
+                       IterationTiming* timing, int rays = 0);
   absl::StatusOr<float> Apply(bool train_decoder, IterationTiming* timing);
 
   // One iteration on the given samples instead of sampled ones (the same steps after sampling):
