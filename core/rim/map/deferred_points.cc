@@ -38,32 +38,53 @@ bool DeferredPoints::Locate(const Vec3f& p, Int3* key, uint32_t* voxel) const {
 void DeferredPoints::Add(const std::vector<Vec3f>& points_W, const std::vector<Vec3f>& origins_W,
                          const Vec3f& sensor_W) {
   if (!enabled_) return;
-  Int3 last_key(0, 0, 0);
-  Table* table = nullptr;
-  std::vector<Int3> grown;  // keys: a new sub-map's table may move the others
+  // First every kept point's sub-map and voxel, so that the table probes below can be requested
+  // a few points ahead: a scan's rays land all over tables too big for the cache, and one miss
+  // after another was most of the cost.
+  struct Located {
+    uint32_t index;
+    uint32_t voxel;
+    Int3 key;
+  };
+  std::vector<Located> kept;
+  kept.reserve(points_W.size());
   for (size_t i = 0; i < points_W.size(); ++i) {
     const Vec3f& p = points_W[i];
     const float dz = p.z() - sensor_W.z();
     if (dz < band_lo_m_ || dz > band_hi_m_) continue;
-    Int3 key;
-    uint32_t voxel;
-    if (!Locate(p, &key, &voxel)) continue;
-    if (table == nullptr || key != last_key) {
-      table = &submaps_[key];
-      last_key = key;
+    Located l;
+    if (!Locate(p, &l.key, &l.voxel)) continue;
+    l.index = uint32_t(i);
+    kept.push_back(l);
+  }
+  constexpr size_t kAhead = 8;
+  std::vector<Int3> grown;  // keys: a new sub-map's table may move the others
+  // Consecutive points mostly share a sub-map: one table lookup and one change mark per run.
+  for (size_t r = 0; r < kept.size();) {
+    const Int3 key = kept[r].key;
+    size_t end = r + 1;
+    while (end < kept.size() && kept[end].key == key) ++end;
+    Table& table = submaps_[key];
+    bool changed = false;
+    for (size_t j = r; j < end; ++j) {
+      if (j + kAhead < end) table.prefetch(kept[j + kAhead].voxel);
+      const size_t i = kept[j].index;
+      const Vec3f& p = points_W[i];
+      Ray ray{{p.x(), p.y(), p.z()}, {origins_W[i].x(), origins_W[i].y(), origins_W[i].z()}};
+      auto [it, inserted] = table.try_emplace(kept[j].voxel, ray);
+      if (inserted) {
+        ++size_;
+        ++added_;
+        changed = true;
+        if (table.size() == size_t(max_per_submap_) + 1) grown.push_back(key);
+      } else if (ray.range2() < it->second.range2()) {
+        it->second = ray;
+        ++added_;
+        changed = true;
+      }
     }
-    Ray ray{{p.x(), p.y(), p.z()}, {origins_W[i].x(), origins_W[i].y(), origins_W[i].z()}};
-    auto [it, inserted] = table->try_emplace(voxel, ray);
-    if (inserted) {
-      ++size_;
-      ++added_;
-      changed_.insert(key);
-      if (table->size() == size_t(max_per_submap_) + 1) grown.push_back(key);
-    } else if (ray.range2() < it->second.range2()) {
-      it->second = ray;
-      ++added_;
-      changed_.insert(key);
-    }
+    if (changed) changed_.insert(key);
+    r = end;
   }
   for (const Int3& key : grown) {
     Table& t = submaps_.at(key);
