@@ -266,20 +266,32 @@ bool FeatureReader::StoreCorners8(int l, const Int3& base, const float** corner,
     for (int a = 0; a < 3; ++a) apart = apart || base[a] + 1 < box.lo[a] || base[a] > box.hi[a];
     if (!apart) return false;
   }
-  const SubmapStore::BlockAddress a = store_.Address(l, base);
-  // Both extreme corners in one block: so are the other six (a block is a cube of lattice
-  // points within one sub-map), at fixed offsets from the first.
-  if (!(store_.Address(l, base + Int3(1, 1, 1)).origin == a.origin)) return false;
-  const Slot s = Fetch(l, base, a);
+  // SubmapStore::Address axis by axis (sub-maps and blocks are boxes on the lattice): for each
+  // axis, the block origin and the offset in the block of the cell's lower and upper corner.
+  // A corner's block and index combine its three axes' choices, so a cell that spans blocks
+  // (a third of them at block_size 8) costs a lookup per block it touches, not per corner.
   const int B = store_.block_size();
+  const Int3 cells = map_.geometry().cells(l);
+  int origin[3][2], in[3][2];
+  for (int a = 0; a < 3; ++a)
+    for (int k = 0; k < 2; ++k) {
+      const int g = base[a] + k;
+      const int sub = FloorDiv(g, cells[a]) * cells[a];
+      const int block = FloorDiv(g - sub, B);
+      origin[a][k] = sub + block * B;
+      in[a][k] = g - origin[a][k];
+    }
   for (int c = 0; c < 8; ++c) {
     const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
+    const SubmapStore::BlockAddress a{Int3(origin[0][cx], origin[1][cy], origin[2][cz]),
+                                      (in[0][cx] * B + in[1][cy]) * B + in[2][cz]};
+    // Decoded at once: a later Fetch may start the block cache over.
+    const Slot s = Fetch(l, base + Int3(cx, cy, cz), a);
     if (s.block == nullptr) {
       corner[c] = zeros_.data();
       continue;
     }
-    const int index = s.index + (cx * B + cy) * B + cz;
-    DecodeRows8(&s.block->features[size_t(index) * Row8Bytes(8)], 1, 8, rows + 8 * c);
+    DecodeRows8(&s.block->features[size_t(s.index) * Row8Bytes(8)], 1, 8, rows + 8 * c);
     corner[c] = rows + 8 * c;
   }
   return true;

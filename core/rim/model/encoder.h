@@ -93,10 +93,10 @@ class FeatureReader {
   // rows when the cell is in the live box (else null: read through Get).
   void EncodeCell8(const float f[3], float inv_h, const float* const* corner, int l,
                    const Int3& base, float* out, float* jac);
-  // The 8 corner rows of a level-l cell that lies wholly outside the live box and in one store
-  // block, decoded into `rows` (8 × 8 floats) with `corner` pointing at them: one address, one
-  // block lookup and one decode for the cell instead of one of each per corner. False (nothing
-  // written) when a corner is in the box or the corners span blocks; Get reads those.
+  // The 8 corner rows of a level-l cell that lies wholly outside the live box, decoded into
+  // `rows` (8 × 8 floats) with `corner` pointing at them: one address computation for the cell
+  // and one block lookup per block its corners fall in, instead of one of each per corner.
+  // False (nothing written) when a corner is in the box; Get reads those.
   bool StoreCorners8(int l, const Int3& base, const float** corner, float* rows);
 
   const LocalMap& map_;
