@@ -281,18 +281,25 @@ bool FeatureReader::StoreCorners8(int l, const Int3& base, const float** corner,
       origin[a][k] = sub + block * B;
       in[a][k] = g - origin[a][k];
     }
+  // Corners grouped by block, each block looked up once and its corners decoded at once (a
+  // later lookup may start the block cache over).
+  bool done[8] = {};
   for (int c = 0; c < 8; ++c) {
-    const int cx = c >> 2 & 1, cy = c >> 1 & 1, cz = c & 1;
-    const SubmapStore::BlockAddress a{Int3(origin[0][cx], origin[1][cy], origin[2][cz]),
-                                      (in[0][cx] * B + in[1][cy]) * B + in[2][cz]};
-    // Decoded at once: a later Fetch may start the block cache over.
-    const Slot s = Fetch(l, base + Int3(cx, cy, cz), a);
-    if (s.block == nullptr) {
-      corner[c] = zeros_.data();
-      continue;
+    if (done[c]) continue;
+    const Int3 o(origin[0][c >> 2 & 1], origin[1][c >> 1 & 1], origin[2][c & 1]);
+    const Slot s = Fetch(l, base + Int3(c >> 2 & 1, c >> 1 & 1, c & 1), {o, 0});
+    for (int k = c; k < 8; ++k) {
+      const int kx = k >> 2 & 1, ky = k >> 1 & 1, kz = k & 1;
+      if (done[k] || !(Int3(origin[0][kx], origin[1][ky], origin[2][kz]) == o)) continue;
+      done[k] = true;
+      if (s.block == nullptr) {
+        corner[k] = zeros_.data();
+        continue;
+      }
+      const int index = (in[0][kx] * B + in[1][ky]) * B + in[2][kz];
+      DecodeRows8(&s.block->features[size_t(index) * Row8Bytes(8)], 1, 8, rows + 8 * k);
+      corner[k] = rows + 8 * k;
     }
-    DecodeRows8(&s.block->features[size_t(s.index) * Row8Bytes(8)], 1, 8, rows + 8 * c);
-    corner[c] = rows + 8 * c;
   }
   return true;
 }
