@@ -4,8 +4,11 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <cmath>
+#include <map>
 #include <random>
+#include <set>
 
 #include "rim/config/config.h"
 
@@ -175,6 +178,113 @@ TEST_F(DistanceFieldTest, TheNearestOfSeveralSubmapsWins) {
   EXPECT_NEAR(sdf[1], 0.4f, 1e-5f);
   EXPECT_EQ(sat[2], 1);  // 5 m from both
   EXPECT_EQ(field_.Stats().submaps, 2);
+}
+
+// Fresh surfels get the normal of a plane fitted through the surfels of the 3×3×3 voxels around
+// them (within their sub-map) where those are planar and agree with the field's normal. Compared
+// with a plain reference of that rule (a lookup per neighbour), on a tilted wall cut by the
+// sub-map's border, a sloped floor, a ridge and scattered surfels, with the field's normals
+// tilted away from the true ones.
+TEST_F(DistanceFieldTest, FreshNormalsArePlaneFitsOverTheirVoxelNeighbourhood) {
+  const Int3 key(-1, 0, 0);
+  const double s = geometry_.leaf_m();
+  std::vector<Surfel> surfels;
+  std::vector<Vec3f> truth;  // each surfel's true normal
+  std::set<uint32_t> taken;
+  auto add = [&](const Vec3f& p, const Vec3f& n) {
+    const Int3 g(int(std::floor(p.x() / s)), int(std::floor(p.y() / s)),
+                 int(std::floor(p.z() / s)));
+    if (geometry_.SubmapOfLattice(0, g) != key) return;
+    const uint32_t voxel = field_.VoxelIndex(key, g);
+    if (!taken.insert(voxel).second) return;
+    // The field's normal, tilted about 11° off the truth.
+    const Vec3f tilt = (n + 0.2f * n.unitOrthogonal()).normalized();
+    surfels.push_back({{p.x(), p.y(), p.z()}, {tilt.x(), tilt.y(), tilt.z()}, voxel});
+    truth.push_back(n);
+  };
+  // A wall x = −0.3 + 0.15 (y − 1) leaning out of the sub-map across its border at x = 0.
+  const Vec3f wall_n = Vec3f(1.f, -0.15f, 0.f).normalized();
+  for (int j = 10; j < 40; ++j)
+    for (int k = 5; k < 25; ++k) {
+      const float y = float((j + 0.5) * s), z = float((k + 0.5) * s);
+      add(Vec3f(-0.3f + 0.15f * (y - 1.f), y, z), wall_n);
+    }
+  // A floor z = 0.33 + 0.05 x.
+  const Vec3f floor_n = Vec3f(-0.05f, 0.f, 1.f).normalized();
+  for (int i = -50; i < -30; ++i)
+    for (int j = 40; j < 60; ++j) {
+      const float x = float((i + 0.5) * s), y = float((j + 0.5) * s);
+      add(Vec3f(x, y, 0.33f + 0.05f * x), floor_n);
+    }
+  // A ridge z = 1 + 0.5 |x + 8|.
+  for (int i = -90; i < -70; ++i)
+    for (int j = 10; j < 25; ++j) {
+      const float x = float((i + 0.5) * s), y = float((j + 0.5) * s);
+      const float side = x < -8.f ? -1.f : 1.f;
+      add(Vec3f(x, y, 1.f + 0.5f * std::abs(x + 8.f)), Vec3f(-0.5f * side, 0.f, 1.f).normalized());
+    }
+  // Scattered surfels with few neighbours.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> ux(-19.9f, -12.f), uy(0.f, 19.9f), uz(0.f, 5.9f);
+  for (int i = 0; i < 300; ++i) add(Vec3f(ux(rng), uy(rng), uz(rng)), Vec3f(0.f, 0.f, 1.f));
+  ASSERT_GT(surfels.size(), 1300u);
+
+  // The reference: the rule with one lookup per neighbour voxel.
+  std::map<uint32_t, size_t> by_voxel;
+  for (size_t i = 0; i < surfels.size(); ++i) by_voxel[surfels[i].voxel] = i;
+  std::map<uint32_t, Vec3f> expected;
+  const Int3 lo = key.cwiseProduct(geometry_.cells(0));
+  const Int3 hi = lo + geometry_.cells(0) - Int3::Ones();
+  for (const Surfel& x : surfels) {
+    const Int3 g = field_.VoxelOf(key, x.voxel);
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d second = Eigen::Matrix3d::Zero();
+    int count = 0;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          const Int3 h = g + Int3(dx, dy, dz);
+          if (!IntBox{lo, hi}.Contains(h)) continue;
+          auto it = by_voxel.find(field_.VoxelIndex(key, h));
+          if (it == by_voxel.end()) continue;
+          const Surfel& o = surfels[it->second];
+          const Eigen::Vector3d p(o.p[0], o.p[1], o.p[2]);
+          mean += p;
+          second += p * p.transpose();
+          ++count;
+        }
+    Vec3f n(x.n[0], x.n[1], x.n[2]);
+    if (count >= 5) {
+      mean /= count;
+      const Eigen::Matrix3d cov = second / count - mean * mean.transpose();
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+      eig.computeDirect(cov);
+      const Eigen::Vector3d ev = eig.eigenvalues();
+      Eigen::Vector3d fit = eig.eigenvectors().col(0);
+      const Eigen::Vector3d field = n.cast<double>();
+      if (fit.dot(field) < 0) fit = -fit;
+      if (ev[0] < 1e-5 && ev[1] > 0.1 * s * s * 0.5 && fit.dot(field) >= 0.7) n = fit.cast<float>();
+    }
+    expected[x.voxel] = n;
+  }
+
+  field_.Replace(key, {}, surfels);
+  const auto got = field_.Surfels(key);
+  ASSERT_TRUE(got);
+  ASSERT_EQ(got->size(), surfels.size());
+  std::map<uint32_t, Vec3f> true_normal;
+  for (size_t i = 0; i < surfels.size(); ++i) true_normal[surfels[i].voxel] = truth[i];
+  int refitted = 0, kept = 0;
+  for (const Surfel& x : *got) {
+    ASSERT_TRUE(expected.count(x.voxel)) << x.voxel;
+    const Vec3f n(x.n[0], x.n[1], x.n[2]), want = expected[x.voxel];
+    for (int a = 0; a < 3; ++a) ASSERT_NEAR(n[a], want[a], 1e-6f) << "voxel " << x.voxel;
+    // On the planes' flat parts the fit is the true normal; elsewhere the field's stays.
+    if (n.dot(true_normal[x.voxel]) > 0.99999f) ++refitted;
+    if (n.dot(true_normal[x.voxel]) < 0.99f) ++kept;
+  }
+  EXPECT_GT(refitted, 1000);
+  EXPECT_GT(kept, 300);
 }
 
 TEST_F(DistanceFieldTest, ReplaceTouchesOnlyItsRegion) {

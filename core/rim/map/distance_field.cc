@@ -8,7 +8,6 @@
 #include <mutex>
 #include <nanoflann.hpp>
 
-#include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
 #include "rim/base/status_macros.h"
 
@@ -279,31 +278,43 @@ void DistanceField::FitNormals(const Int3& key, std::vector<Surfel>* surfels) co
   // the 3×3×3 voxels around a fresh one gives its normal where they are planar; the field's
   // normal orients it, and stays where the neighbourhood is not a plane (edges, thin parts).
   std::vector<Surfel>& s = *surfels;
-  absl::flat_hash_map<uint32_t, uint32_t> by_voxel;
-  by_voxel.reserve(s.size());
-  for (size_t i = 0; i < s.size(); ++i) by_voxel.emplace(s[i].voxel & ~kFresh, uint32_t(i));
+  // The surfels are sorted by voxel index, (x·Cy + y)·Cz + z within the sub-map: a column of
+  // neighbours (fixed x and y offsets, z − 1 … z + 1) is a run of consecutive indices. Fresh
+  // surfels are visited in index order, so the lowest neighbour index of each of the 9 columns
+  // only grows; a cursor per column follows it through the array, with no lookups.
+  const Int3 c = geometry_.cells(0);
+  const size_t total = s.size();
   const double leaf = geometry_.leaf_m();
+  auto index_at = [&](size_t i) { return s[i].voxel & ~kFresh; };
+  size_t cursor[9] = {};
   for (Surfel& x : s) {
     if (!(x.voxel & kFresh)) continue;
     x.voxel &= ~kFresh;
-    const Int3 g = VoxelOf(key, x.voxel);
-    const Int3 lo = key.cwiseProduct(geometry_.cells(0));
-    const Int3 hi = lo + geometry_.cells(0) - Int3::Ones();
+    const Int3 g = VoxelOf(key, x.voxel) - key.cwiseProduct(c);  // within the sub-map
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     Eigen::Matrix3d second = Eigen::Matrix3d::Zero();
     int count = 0;
     for (int dx = -1; dx <= 1; ++dx)
-      for (int dy = -1; dy <= 1; ++dy)
+      for (int dy = -1; dy <= 1; ++dy) {
+        const int hx = g.x() + dx, hy = g.y() + dy;
+        if (hx < 0 || hx >= c.x() || hy < 0 || hy >= c.y()) continue;
+        const uint32_t column = (uint32_t(hx) * uint32_t(c.y()) + uint32_t(hy)) * uint32_t(c.z());
+        const uint32_t first = column + uint32_t(std::max(g.z() - 1, 0));
+        size_t& at = cursor[(dx + 1) * 3 + (dy + 1)];
+        while (at < total && index_at(at) < first) ++at;
+        size_t k = at;
         for (int dz = -1; dz <= 1; ++dz) {
-          const Int3 h = g + Int3(dx, dy, dz);
-          if (!IntBox{lo, hi}.Contains(h)) continue;
-          auto it = by_voxel.find(VoxelIndex(key, h));
-          if (it == by_voxel.end()) continue;
-          const Eigen::Vector3d p(s[it->second].p[0], s[it->second].p[1], s[it->second].p[2]);
+          const int hz = g.z() + dz;
+          if (hz < 0 || hz >= c.z()) continue;
+          const uint32_t target = column + uint32_t(hz);
+          while (k < total && index_at(k) < target) ++k;
+          if (k == total || index_at(k) != target) continue;
+          const Eigen::Vector3d p(s[k].p[0], s[k].p[1], s[k].p[2]);
           mean += p;
           second += p * p.transpose();
           ++count;
         }
+      }
     if (count < 5) continue;
     mean /= count;
     const Eigen::Matrix3d cov = second / count - mean * mean.transpose();
