@@ -43,6 +43,7 @@ void SetStageCounters(benchmark::State& state, const StageTimings& t) {
   state.counters["forward_ms"] = per_frame(t.forward_s);
   state.counters["backward_ms"] = per_frame(t.backward_s);
   state.counters["step_ms"] = per_frame(t.step_s);
+  state.counters["distance_ms"] = per_frame(t.distance_s);
   state.counters["total_ms"] = per_frame(t.total_s);
   state.counters["iterations"] =
       benchmark::Counter(t.iterations, benchmark::Counter::kAvgIterations);
@@ -80,14 +81,22 @@ void BM_Frame(benchmark::State& state, const std::string& preset,
   state.counters["rss_mb"] = double(ResidentBytes()) / (1 << 20);
 }
 
-// Stage/Slide and Stage/Preprocess: the two per-frame stages of IntegrateScan before training,
-// each timed on its own (manual time) while the mapper runs whole frames as Frame/ does.
-enum class FrameStage { kSlide, kPreprocess };
+// Stage/Slide, Stage/Preprocess and Stage/Refresh: per-frame stages of IntegrateScan outside the
+// training iterations, each timed on its own (manual time) while the mapper runs whole frames as
+// Frame/ does. The distance field is refreshed every query.refresh_frames frames, so Refresh's
+// time is the refresh's cost per frame on average (zero on the frames between refreshes).
+enum class FrameStage { kSlide, kPreprocess, kRefresh };
 
-void BM_FrameStage(benchmark::State& state, const std::string& preset, FrameStage stage) {
-  RunFrames(state, preset, {}, [&](const StageTimings& t) {
-    state.SetIterationTime(stage == FrameStage::kSlide ? t.slide_s : t.preprocess_s);
-  });
+void BM_FrameStage(benchmark::State& state, const std::string& preset,
+                   const std::vector<std::string>& overrides, FrameStage stage, CityKind city) {
+  RunFrames(
+      state, preset, overrides,
+      [&](const StageTimings& t) {
+        state.SetIterationTime(stage == FrameStage::kSlide        ? t.slide_s
+                               : stage == FrameStage::kPreprocess ? t.preprocess_s
+                                                                  : t.distance_s);
+      },
+      city);
 }
 
 void BM_Sequence(benchmark::State& state, const std::string& preset) {
@@ -160,11 +169,22 @@ void RegisterFrameStageBenchmarks() {
   // The box moves with the robot at every preset's speed the same way: one preset is enough.
   for (const auto& [name, stage] : {std::pair{"Stage/Slide", FrameStage::kSlide},
                                     std::pair{"Stage/Preprocess", FrameStage::kPreprocess}}) {
-    benchmark::RegisterBenchmark(name, BM_FrameStage, std::string("maicity_online"), stage)
+    benchmark::RegisterBenchmark(name, BM_FrameStage, std::string("maicity_online"),
+                                 std::vector<std::string>{}, stage, CityKind::kDefault)
         ->Iterations(Options().measured_frames)
         ->Unit(benchmark::kMillisecond)
         ->UseManualTime();
   }
+  // The refresh on the far-return city at the floor a loaded server trains at (3 iterations a
+  // frame), where it is the largest stage of a frame. 40 frames after the warm-up (4 refreshes
+  // with the default warm-up and query.refresh_frames), not measured_frames (2 of them).
+  benchmark::RegisterBenchmark(
+      "Stage/Refresh/far", BM_FrameStage, std::string("maicity"),
+      std::vector<std::string>{"train.iterations=3", "train.min_iterations=3"},
+      FrameStage::kRefresh, CityKind::kFarReturns)
+      ->Iterations(40)
+      ->Unit(benchmark::kMillisecond)
+      ->UseManualTime();
 }
 
 void RegisterSequenceBenchmarks() {
