@@ -176,13 +176,13 @@ void RegisterFrameStageBenchmarks() {
         ->UseManualTime();
   }
   // The refresh on the far-return city at the floor a loaded server trains at (3 iterations a
-  // frame), where it is the largest stage of a frame. 40 frames after the warm-up (4 refreshes
-  // with the default warm-up and query.refresh_frames), not measured_frames (2 of them).
+  // frame), where it is the largest stage of a frame; twice measured_frames after the warm-up (by
+  // default 40 frames and 4 refreshes with query.refresh_frames = 10; measured_frames holds 2).
   benchmark::RegisterBenchmark(
       "Stage/Refresh/far", BM_FrameStage, std::string("maicity"),
       std::vector<std::string>{"train.iterations=3", "train.min_iterations=3"},
       FrameStage::kRefresh, CityKind::kFarReturns)
-      ->Iterations(40)
+      ->Iterations(2 * Options().measured_frames)
       ->Unit(benchmark::kMillisecond)
       ->UseManualTime();
 }
