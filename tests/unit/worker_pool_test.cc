@@ -27,6 +27,24 @@ TEST(WorkerPoolTest, EveryTaskRunsExactlyOnce) {
   }
 }
 
+// The trainer's pattern: a task spins until a task with a smaller index has finished. Run
+// returns without waiting for workers that have not woken; such a worker must never take a task
+// of a region it did not see, nor miss one of the region it joins late.
+TEST(WorkerPoolTest, BackToBackRegionsWithOrderedWaitsAndLateWorkers) {
+  WorkerPool pool(3);
+  std::vector<std::atomic<int>> done(8);
+  for (int round = 0; round < 20000; ++round) {
+    const int tasks = 2 + round % 7;
+    for (auto& d : done) d.store(0);
+    pool.Run(tasks, [&](int i) {
+      if (i > 0)
+        while (done[size_t(i - 1)].load(std::memory_order_acquire) == 0) std::this_thread::yield();
+      ASSERT_EQ(done[size_t(i)].fetch_add(1, std::memory_order_release), 0);
+    });
+    for (int i = 0; i < 8; ++i) ASSERT_EQ(done[size_t(i)].load(), i < tasks ? 1 : 0) << round;
+  }
+}
+
 TEST(WorkerPoolTest, TasksRunOnSeveralThreads) {
   WorkerPool pool(2);
   std::mutex mu;

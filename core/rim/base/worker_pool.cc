@@ -23,8 +23,17 @@ WorkerPool::~WorkerPool() {
   for (std::thread& t : workers_) t.join();
 }
 
-void WorkerPool::Drain() {
-  for (int i = next_.fetch_add(1); i < tasks_; i = next_.fetch_add(1)) (*fn_)(i);
+bool WorkerPool::Drain(uint32_t generation, const std::function<void(int)>& fn, int tasks) {
+  uint64_t claim = claim_.load(std::memory_order_acquire);
+  for (;;) {
+    // A claim is (generation, next task): a thread that woke for an earlier region finds another
+    // generation here and takes nothing, so it never runs a task of a region it did not see.
+    if (uint32_t(claim >> 32) != generation || int(uint32_t(claim)) >= tasks) return false;
+    if (!claim_.compare_exchange_weak(claim, claim + 1, std::memory_order_acq_rel)) continue;
+    fn(int(uint32_t(claim)));
+    if (finished_.fetch_add(1, std::memory_order_acq_rel) + 1 == tasks) return true;
+    claim = claim_.load(std::memory_order_acquire);
+  }
 }
 
 void WorkerPool::Run(int tasks, const std::function<void(int)>& fn) {
@@ -33,39 +42,48 @@ void WorkerPool::Run(int tasks, const std::function<void(int)>& fn) {
     return;
   }
   const int nice = ThisThreadNice();
+  uint32_t generation;
   {
     std::lock_guard<std::mutex> lock(mu_);
     caller_nice_ = nice;
     fn_ = &fn;
     tasks_ = tasks;
-    next_.store(0);
-    busy_ = int(workers_.size());
-    ++generation_;
+    generation = uint32_t(++generation_);
+    finished_.store(0, std::memory_order_relaxed);
+    claim_.store(uint64_t(generation) << 32, std::memory_order_release);
   }
   start_cv_.notify_all();
-  Drain();
-  // Every worker checks in for this generation before the next Run may reset the task counter.
+  if (Drain(generation, fn, tasks)) return;
+  // Wait only for tasks that a worker took and is still running. A worker that has not woken yet
+  // (on a busy machine it may sit behind other threads for milliseconds) is not waited for: it
+  // will find every task taken. The last task's finisher notifies under the lock, so the wake-up
+  // cannot fall between the check and the wait.
   std::unique_lock<std::mutex> lock(mu_);
-  done_cv_.wait(lock, [this] { return busy_ == 0; });
-  fn_ = nullptr;
+  done_cv_.wait(lock, [&] { return finished_.load(std::memory_order_acquire) == tasks; });
 }
 
 void WorkerPool::Work() {
   uint64_t seen = 0;
   int my_nice = ThisThreadNice();
   for (;;) {
-    int nice;
+    int nice, tasks;
+    const std::function<void(int)>* fn;
     {
       std::unique_lock<std::mutex> lock(mu_);
       start_cv_.wait(lock, [&] { return stop_ || generation_ != seen; });
       if (stop_) return;
       seen = generation_;
       nice = caller_nice_;
+      fn = fn_;
+      tasks = tasks_;
     }
     if (nice > my_nice && LowerThisThreadPriority(nice)) my_nice = nice;
-    Drain();
-    std::lock_guard<std::mutex> lock(mu_);
-    if (--busy_ == 0) done_cv_.notify_one();
+    // fn is only called for a task claimed under this generation, and Run does not return while
+    // such a task runs, so fn is still alive whenever it is called.
+    if (Drain(uint32_t(seen), *fn, tasks)) {
+      std::lock_guard<std::mutex> lock(mu_);
+      done_cv_.notify_one();
+    }
   }
 }
 

@@ -30,21 +30,26 @@ class WorkerPool {
   // index (a thread takes the next task when it finishes one); returns when all have finished.
   // Tasks are handed out in increasing index order, so a task may wait (spin) for one with a
   // smaller index: that one has been taken by a running thread. fn must not throw. Not
-  // reentrant: one Run at a time per pool.
+  // reentrant: one Run at a time per pool. Run waits for the tasks, not for the workers: when
+  // the caller has run every task itself, it returns without waiting for a worker to wake.
   void Run(int tasks, const std::function<void(int)>& fn);
 
  private:
   void Work();
-  void Drain();
+  // Runs tasks of the given region while any is left to take; true when this thread finished the
+  // region's last task.
+  bool Drain(uint32_t generation, const std::function<void(int)>& fn, int tasks);
 
   std::mutex mu_;
   std::condition_variable start_cv_, done_cv_;
+  // The region being run, under mu_: what a worker reads when it wakes.
   const std::function<void(int)>* fn_ = nullptr;
   int tasks_ = 0;
-  std::atomic<int> next_{0};
-  int busy_ = 0;
   uint64_t generation_ = 0;
-  int caller_nice_ = 0;  // the nice value of the thread in Run
+  // The region's generation (low 32 bits) in the high half, its next task in the low half.
+  std::atomic<uint64_t> claim_{0};
+  std::atomic<int> finished_{0};  // tasks of the region that have returned
+  int caller_nice_ = 0;           // the nice value of the thread in Run
   bool stop_ = false;
   std::vector<std::thread> workers_;
 };
