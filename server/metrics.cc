@@ -103,6 +103,19 @@ struct ServerMetrics::Families {
                   .Name("rim_training_stage_seconds")
                   .Help("Time one frame spent in a stage, summed over its iterations")
                   .Register(r)),
+        between_iterations(prometheus::BuildCounter()
+                               .Name("rim_between_frames_iterations_total")
+                               .Help("Training iterations run between frames, while a robot "
+                                     "streaming in real time had not sent its next scan")
+                               .Register(r)),
+        between_rays(prometheus::BuildCounter()
+                         .Name("rim_between_frames_rays_total")
+                         .Help("Rays those iterations trained on")
+                         .Register(r)),
+        between_seconds(prometheus::BuildCounter()
+                            .Name("rim_between_frames_training_seconds_total")
+                            .Help("Wall time of those iterations")
+                            .Register(r)),
         refresh(prometheus::BuildHistogram()
                     .Name("rim_distance_refresh_seconds")
                     .Help("Time of one refresh of a session's distance field (surfel extraction, "
@@ -170,6 +183,9 @@ struct ServerMetrics::Families {
   prometheus::Family<prometheus::Counter>& integrated;
   prometheus::Family<Histogram>& frame;
   prometheus::Family<Histogram>& stage;
+  prometheus::Family<prometheus::Counter>& between_iterations;
+  prometheus::Family<prometheus::Counter>& between_rays;
+  prometheus::Family<prometheus::Counter>& between_seconds;
   prometheus::Family<Histogram>& refresh;
   prometheus::Family<prometheus::Counter>& query_points;
   prometheus::Family<Histogram>& query_latency;
@@ -363,6 +379,11 @@ void ServerMetrics::ScanRejected(const std::string& robot, absl::StatusCode code
 
 void ServerMetrics::FrameIntegrated(const std::string& robot, const StageTimings& t) {
   families_->integrated.Add({{"session", robot}}).Increment();
+  // At 0 from the first frame, so that a session that never trains between frames (an upload)
+  // shows that rather than no series.
+  families_->between_iterations.Add({{"session", robot}});
+  families_->between_rays.Add({{"session", robot}});
+  families_->between_seconds.Add({{"session", robot}});
   families_->frame.Add({{"session", robot}}, kFrameBuckets).Observe(t.total_s);
   const double known = t.slide_s + t.preprocess_s + t.sample_s + t.encode_s + t.forward_s +
                        t.backward_s + t.step_s + t.distance_s;
@@ -377,6 +398,13 @@ void ServerMetrics::FrameIntegrated(const std::string& robot, const StageTimings
                                                    {"other", std::max(0.0, t.total_s - known)}};
   for (const auto& [stage, seconds] : stages)
     families_->stage.Add({{"session", robot}, {"stage", stage}}, kStageBuckets).Observe(seconds);
+}
+
+void ServerMetrics::TrainedBetweenFrames(const std::string& robot, const StageTimings& t) {
+  families_->between_iterations.Add({{"session", robot}}).Increment(t.iterations);
+  families_->between_rays.Add({{"session", robot}})
+      .Increment(double(t.iterations) * t.rays_per_iteration);
+  families_->between_seconds.Add({{"session", robot}}).Increment(t.train_s);
 }
 
 void ServerMetrics::DistanceRefreshed(const std::string& robot, double seconds) {

@@ -50,6 +50,7 @@ class ServerMetrics : public SessionEvents {
   void ScanRejected(const std::string& robot, absl::StatusCode code) override;
   void FrameIntegrated(const std::string& robot, const StageTimings& timing) override;
   void FrameFailed(const std::string& robot) override;
+  void TrainedBetweenFrames(const std::string& robot, const StageTimings& timing) override;
   void DistanceRefreshed(const std::string& robot, double seconds) override;
   void WalAppended(const std::string& robot, double seconds) override;
   void CheckpointWritten(const std::string& robot, double seconds, uint64_t bytes) override;

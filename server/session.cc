@@ -256,6 +256,44 @@ void Session::Settle(std::function<void()> done) {
   done();
 }
 
+bool Session::TrainBetweenFrames(std::unique_lock<std::mutex>& lock) {
+  // Not before a refresh that its budget now allows: that one goes first.
+  if (refresh_owed_ && SteadySeconds() >= last_refresh_end_s_ + 4 * last_refresh_s_) return false;
+  // Never while another session waits for a training slot: its frame comes first.
+  if (options_.scheduler && (options_.scheduler->waiting() > 0 ||
+                             options_.scheduler->active() >= options_.scheduler->slots()))
+    return false;
+  busy_ = true;
+  lock.unlock();
+  absl::StatusOr<int> trained;
+  StageTimings timing;
+  {
+    std::optional<ComputeScheduler::Lease> slot;
+    if (options_.scheduler) slot.emplace(options_.scheduler->Acquire());
+    // A few iterations per slot, each only while no scan waits, nothing else wants the trainer
+    // and no other session waits for the slot: a scan that arrives waits at most one iteration.
+    trained = mapper_->TrainBetweenFrames(
+        std::min(between_left_, kBetweenFramesIterations), between_rays_,
+        [this] {
+          if (options_.scheduler && options_.scheduler->waiting() > 0) return false;
+          std::lock_guard<std::mutex> relock(mu_);
+          return !closing_ && queue_.empty() && settle_waiters_.empty();
+        },
+        &timing);
+  }
+  lock.lock();
+  busy_ = false;
+  cv_.notify_all();
+  // A failure here is the next frame's to report; stop training between frames until then.
+  if (!trained.ok() || *trained == 0) {
+    between_left_ = 0;
+    return true;
+  }
+  between_left_ -= *trained;
+  if (options_.events) options_.events->TrainedBetweenFrames(robot_id_, timing);
+  return true;
+}
+
 double Session::RefreshDistanceFieldNow() {
   last_refresh_s_ = mapper_->RefreshDistanceField();
   last_refresh_end_s_ = SteadySeconds();
@@ -354,6 +392,7 @@ void Session::Run() {
   while (true) {
     // Drain everything accepted before stopping: an accepted scan is never dropped.
     const auto ready = [this] { return closing_ || !queue_.empty() || !settle_waiters_.empty(); };
+    if (!ready() && between_left_ > 0 && TrainBetweenFrames(lock)) continue;
     if (refresh_owed_) {
       // The last frame's refresh was skipped for the budget: make it up when the budget allows,
       // unless a frame (which refreshes in its turn) comes first.
@@ -450,6 +489,11 @@ void Session::Run() {
       }
     }
 
+    // A paced frame trained what its period fits by the measured costs; until the next scan
+    // comes, the session trains on (TrainBetweenFrames), up to the frame's bound.
+    between_left_ =
+        status.ok() && period_s >= kMinPacedPeriodS ? std::max(0, most - iterations) : 0;
+    between_rays_ = rays;
     if (status.ok() && timing.iterations > 0) {
       // The costs PacedIterations plans with: wall times, so that they include what the other
       // threads (meshing, queries, other sessions) take from this one, and what an iteration

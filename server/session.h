@@ -87,6 +87,10 @@ struct SessionStats {
 // the queue paces their training (Session::AdaptiveIterations), not their rate.
 inline constexpr double kMinPacedPeriodS = 0.02;
 
+// Iterations trained between frames per hold of a training slot (Session::TrainBetweenFrames):
+// the scheduler and the queue are checked before each one.
+inline constexpr int kBetweenFramesIterations = 4;
+
 // Iterations that keep a session up with a robot that sends a scan every `period_s` seconds,
 // when an iteration takes `iteration_s` and the rest of a frame (slide, preprocessing, its share
 // of distance refreshes) `overhead_s`, wall time: what fits in 95 % of the period, less a quarter
@@ -202,6 +206,10 @@ class Session {
   double RefreshDistanceFieldIfBehind();
   // Trainer thread, holding a training slot: refreshes it now, records when and how long.
   double RefreshDistanceFieldNow();
+  // Trainer thread, `lock` (on mu_) held and nothing ready: trains a few iterations between
+  // frames while no scan comes (Mapper::TrainBetweenFrames); false when it should not now (a
+  // refresh owed is due, or another session wants the training slot), so the caller waits.
+  bool TrainBetweenFrames(std::unique_lock<std::mutex>& lock);
 
   struct Item {
     uint64_t sequence;
@@ -252,6 +260,10 @@ class Session {
   // Trainer thread only: a refresh was skipped for the budget after the last frame; the trainer
   // makes it up once the budget allows, if no frame comes first.
   bool refresh_owed_ = false;
+  // Trainer thread only: iterations the last frame may still train between frames (its bound,
+  // IterationBounds' most, less what it trained; 0 unless the frame was paced), and their batch.
+  int between_left_ = 0;
+  int between_rays_ = 0;
   TileCache tiles_;
   // Held while joining trainer_, so that concurrent Close() calls neither race on the thread
   // object nor join it twice.

@@ -20,6 +20,9 @@ class SessionEvents {
   // A frame was trained (`timing` holds its per-stage times), or training it failed.
   virtual void FrameIntegrated(const std::string& robot, const StageTimings& timing) {}
   virtual void FrameFailed(const std::string& robot) {}
+  // Iterations trained between frames, while a robot streaming in real time had not sent its
+  // next scan (Mapper::TrainBetweenFrames); `timing` holds their stages, train_s their wall time.
+  virtual void TrainedBetweenFrames(const std::string& robot, const StageTimings& timing) {}
   // The session's distance field was refreshed: after a frame (then also in that frame's
   // timing.distance_s), or between frames (a refresh made up after a budget skip, or at a
   // stream's end).

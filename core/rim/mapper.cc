@@ -264,6 +264,48 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   return absl::OkStatus();
 }
 
+absl::StatusOr<int> Mapper::TrainBetweenFrames(int iterations, int rays_per_iteration,
+                                               const std::function<bool()>& keep_going,
+                                               StageTimings* timing) {
+  // Whole units against Save, as a frame is: a checkpoint holds these iterations or none of them.
+  std::unique_lock<std::mutex> frame(frame_mu_);
+  if (frames_ == 0 || iterations <= 0) return 0;
+  const int rays = rays_per_iteration > 0 ? rays_per_iteration : config_.sampler.rays_per_iteration;
+  const bool train_decoder = frames_ < config_.decoder.freeze_after_frames;
+  IterationTiming it;
+  const double start = Now();
+  int done = 0;
+  while (done < iterations && keep_going()) {
+    {
+      std::shared_lock lock(mu_);
+      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it, rays));
+    }
+    std::unique_lock lock(mu_);
+    auto loss = trainer_->Apply(train_decoder, &it);
+    if (!loss.ok()) return loss.status();
+    map_version_.fetch_add(1);
+    ++done;
+  }
+  if (done > 0) {
+    std::unique_lock lock(mu_);
+    BumpVersions(train_decoder, nullptr);
+    mesh_changes_->Record({local_map_->LatticeBox(0)}, train_decoder);
+    if (train_decoder) distance_all_stale_ = true;
+  }
+  if (timing) {
+    timing->sample_s += it.sample_s;
+    timing->encode_s += it.encode_s;
+    timing->forward_s += it.forward_s;
+    timing->backward_s += it.backward_s;
+    timing->step_s += it.step_s;
+    timing->train_s += Now() - start;
+    timing->total_s += Now() - start;
+    timing->iterations += done;
+    timing->rays_per_iteration = rays;
+  }
+  return done;
+}
+
 void Mapper::BumpVersions(bool decoder_changed, const IntBox* old_box) {
   const uint64_t v = map_version_.load();
   // The decoder is shared by every tile: while it trains, every tile changes.

@@ -6,6 +6,7 @@
 
 #include <Eigen/Geometry>
 #include <atomic>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
@@ -140,6 +141,16 @@ class Mapper {
   // frame trains as many rays as with the configured batch, rounded, the most at least 1 when
   // train.iterations is.
   std::pair<int, int> IterationBounds(int rays_per_iteration) const;
+
+  // More training on what the map has seen, between frames: up to `iterations` iterations of
+  // `rays_per_iteration` rays (as IntegrateScan's) on the point buffer and the last scan's
+  // outside rays, each run only while `keep_going()` says so (checked before each). For an owner
+  // with idle time before the next scan comes (a robot streaming in real time); the frame count
+  // does not change. The decoder trains as the next frame's iterations would. Returns the
+  // iterations run; 0 before the first frame. `timing` (optional) accumulates their stages.
+  absl::StatusOr<int> TrainBetweenFrames(int iterations, int rays_per_iteration,
+                                         const std::function<bool()>& keep_going,
+                                         StageTimings* timing = nullptr);
 
   // Signed Euclidean distance to the nearest mapped surface (and its gradient) at n points xyz
   // (world frame), anywhere in the mapped world: the metric distance field (distance_field.h),

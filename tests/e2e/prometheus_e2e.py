@@ -182,6 +182,8 @@ def main() -> int:
             (f"rim_iterations_per_frame{s}", lambda v: 1 <= v <= 8),
             # An upload trains on the configured batch (a robot in real time may not).
             (f"rim_rays_per_iteration{s}", lambda v: v == 512),
+            # An upload is not paced: it never trains between frames.
+            (f"rim_between_frames_iterations_total{s}", lambda v: v == 0),
             (f"rim_frame_integration_seconds_count{s}", lambda v: v == FRAMES),
             (f"rim_frame_integration_seconds_sum{s}", lambda v: v > 0),
             (f'rim_training_stage_seconds_count{{session="{ROBOT}",stage="backward"}}',

@@ -43,6 +43,15 @@ std::vector<std::pair<std::string, std::string>> Overrides(int iterations) {
 
 struct StreamRun {
   std::vector<int> lag, iterations, rays;  // per INTEGRATED ack, in order
+  std::vector<uint64_t> versions;
+  // Iterations trained between frames: over consecutive acks, the map versions gained (one an
+  // iteration) less the later frame's own iterations.
+  int64_t Between() const {
+    int64_t between = 0;
+    for (size_t i = 1; i < versions.size(); ++i)
+      between += int64_t(versions[i] - versions[i - 1]) - iterations[i];
+    return between;
+  }
 };
 
 // Streams kFrames ground scans at `interval` into a new session with 300 iterations a frame.
@@ -61,6 +70,7 @@ StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, 
     run.lag.push_back(int(ack.lag_frames()));
     run.iterations.push_back(int(ack.iterations()));
     run.rays.push_back(int(ack.rays_per_iteration()));
+    run.versions.push_back(ack.map_version());
   };
   auto summary = client->Session(robot).Stream(scans, options);
   EXPECT_TRUE(summary.ok()) << summary.status();
@@ -107,6 +117,12 @@ TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRate
   EXPECT_EQ(SecondHalfMedian(paced.rays), kPacedRays);
   EXPECT_LT(SecondHalfMedian(paced.iterations), 4 * 300);
   EXPECT_GT(SecondHalfMedian(paced.iterations), 4 * 2);
+  // What the period leaves after a frame's planned iterations, the paced session trains on
+  // between frames (Mapper::TrainBetweenFrames); the upload, whose queue never empties, does not.
+  std::printf("iterations between frames: paced %lld, upload %lld\n", (long long)paced.Between(),
+              (long long)upload.Between());
+  EXPECT_GT(paced.Between(), 0);
+  EXPECT_EQ(upload.Between(), 0);
   // The upload: the queue rule lowers the iterations only as the queue fills, so it runs full,
   // on the configured batch.
   EXPECT_GE(SecondHalfMedian(upload.lag), kQueueLength / 2) << "interval " << interval_s << " s";

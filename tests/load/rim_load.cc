@@ -16,6 +16,9 @@
 //    N, median iterations/frame N, largest lag N frames"
 //   "  ROBOT: median rays/frame N" (iterations × the batch each trained on: a robot streaming
 //    in real time trains on sampler.paced_rays_per_iteration rays an iteration)
+//   "  ROBOT: median rays trained per frame period N (frame and between frames)" (from the
+//    map versions of consecutive acks, one version per iteration: a session that streams in
+//    real time trains on between its frames, Mapper::TrainBetweenFrames)
 //   "  queries: N batches, N points, latency p50 N ms, p99 N ms, N % within the bound"
 // The last figure is the share of the planners' points that read a surface within the session's
 // query.max_distance_m (not saturated). A query's cost grows with it: a planner asking around
@@ -152,6 +155,8 @@ int main(int argc, char** argv) {
   std::vector<std::vector<double>> iterations(o.robots);
   // Rays trained per frame (iterations × the ack's batch): comparable across batch sizes.
   std::vector<std::vector<double>> rays_per_frame(o.robots);
+  std::vector<std::vector<double>> trained_per_period(o.robots);
+  std::vector<uint64_t> last_version(size_t(o.robots), 0);
   // Per robot: the map version of each INTEGRATED ack and when it arrived, in arrival order
   // (map versions only grow).
   using Clock = std::chrono::steady_clock;
@@ -182,6 +187,12 @@ int main(int argc, char** argv) {
           min_iterations[r] = std::min(min_iterations[r], ack.iterations());
           iterations[r].push_back(ack.iterations());
           rays_per_frame[r].push_back(double(ack.iterations()) * ack.rays_per_iteration());
+          // One map version per iteration: the versions since the last ack count the
+          // iterations trained between the two frames as well as this frame's.
+          if (last_version[r] > 0 && ack.map_version() >= last_version[r])
+            trained_per_period[r].push_back(double(ack.map_version() - last_version[r]) *
+                                            ack.rays_per_iteration());
+          last_version[r] = ack.map_version();
           integrations[r].emplace_back(ack.map_version(), Clock::now());
         }
         max_lag[r] = std::max(max_lag[r], ack.lag_frames());
@@ -288,6 +299,8 @@ int main(int argc, char** argv) {
         Quantile(iterations[r], 0.5), (unsigned long long)max_lag[r]);
     std::printf("  %s: median rays/frame %.0f\n", robots[r].c_str(),
                 Quantile(rays_per_frame[r], 0.5));
+    std::printf("  %s: median rays trained per frame period %.0f (frame and between frames)\n",
+                robots[r].c_str(), Quantile(trained_per_period[r], 0.5));
   }
   std::printf(
       "  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms, %.1f %% within the "

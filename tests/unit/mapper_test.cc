@@ -206,6 +206,67 @@ TEST_F(MapperTest, SmallerBatchesScaleTheIterationBounds) {
   EXPECT_EQ(t.rays_per_iteration, 256);
 }
 
+// Training between frames (a robot streaming in real time has not sent its next scan yet): more
+// iterations on what was seen, as many as asked while keep_going allows, each a map version, the
+// frame count unchanged, the tiles they touched reported changed; nothing before the first frame.
+TEST_F(MapperTest, TrainingBetweenFramesRunsWhileAllowedAndLearns) {
+  auto fresh = Mapper::Create(SmallConfig());
+  ASSERT_TRUE(fresh.ok());
+  auto none = (*fresh)->TrainBetweenFrames(5, 64, [] { return true; });
+  ASSERT_TRUE(none.ok());
+  EXPECT_EQ(*none, 0);
+  EXPECT_EQ((*fresh)->map_version(), 0u);
+
+  const uint64_t v0 = mapper_->map_version();
+  const int64_t frames = mapper_->frames();
+  StageTimings t;
+  auto five = mapper_->TrainBetweenFrames(
+      5, 64, [] { return true; }, &t);
+  ASSERT_TRUE(five.ok()) << five.status();
+  EXPECT_EQ(*five, 5);
+  EXPECT_EQ(mapper_->map_version(), v0 + 5);
+  EXPECT_EQ(mapper_->frames(), frames);
+  EXPECT_EQ(t.iterations, 5);
+  EXPECT_EQ(t.rays_per_iteration, 64);
+  EXPECT_GT(t.train_s, 0.0);
+  EXPECT_FALSE(mapper_->ListTiles(v0).empty());
+  // keep_going is asked before each iteration.
+  int asked = 0;
+  auto two = mapper_->TrainBetweenFrames(5, 64, [&] { return ++asked <= 2; });
+  ASSERT_TRUE(two.ok());
+  EXPECT_EQ(*two, 2);
+  EXPECT_EQ(asked, 3);
+  const uint64_t v1 = mapper_->map_version();
+  auto stopped = mapper_->TrainBetweenFrames(5, 64, [] { return false; });
+  ASSERT_TRUE(stopped.ok());
+  EXPECT_EQ(*stopped, 0);
+  EXPECT_EQ(mapper_->map_version(), v1);
+  EXPECT_TRUE(mapper_->ListTiles(v1).empty());
+
+  // It learns: the same frame, with and without 60 iterations between frames; the network's
+  // value on the box's front face (its zero level belongs there) comes closer to zero.
+  auto mean_abs = [](Mapper& m) {
+    const std::vector<float> xyz = Probe();
+    QueryResult q;
+    EXPECT_TRUE(m.QueryNeural(xyz.data(), xyz.size() / 3, false, &q).ok());
+    double sum = 0;
+    for (float d : q.sdf) sum += std::abs(d);
+    return sum / double(q.sdf.size());
+  };
+  auto a = Mapper::Create(SmallConfig());
+  auto b = Mapper::Create(SmallConfig());
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_TRUE((*a)->IntegrateScan(ScanAt(scene_, 0.f, 1), 2).ok());
+  ASSERT_TRUE((*b)->IntegrateScan(ScanAt(scene_, 0.f, 1), 2).ok());
+  auto more = (*b)->TrainBetweenFrames(60, 0, [] { return true; });
+  ASSERT_TRUE(more.ok());
+  EXPECT_EQ(*more, 60);
+  const double before = mean_abs(**a), after = mean_abs(**b);
+  std::printf("front face |sdf|: %.4f m after one frame, %.4f m with 60 more iterations\n", before,
+              after);
+  EXPECT_LT(after, 0.5 * before);
+}
+
 TEST_F(MapperTest, TilesReportOnlyChangesSinceAVersion) {
   const uint64_t v = mapper_->map_version();
   EXPECT_FALSE(mapper_->ListTiles(0).empty());
