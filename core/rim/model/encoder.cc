@@ -73,7 +73,10 @@ void EncodeLocal(const LocalMap& map, const float* xyz, int n, LocalEncoding* en
   enc->slots.resize(size_t(n) * L * 8);
   enc->weights.resize(size_t(n) * L * 8);
   // Every (level, chunk of points) pair writes its own entries: no two tasks share an output.
-  const int chunks = pool ? pool->threads() : 1;
+  // Four chunks per thread and level: the levels miss the cache unequally (the finest most), and
+  // with one chunk per thread one thread idled at the region's end (encode −7 to −12 % a 512-ray
+  // iteration, BENCHMARK.md).
+  const int chunks = pool ? 4 * pool->threads() : 1;
   auto task = [&](int i) {
     const int l = i / chunks, c = i % chunks;
     EncodeRange(map, l, xyz, int(int64_t(n) * c / chunks), int(int64_t(n) * (c + 1) / chunks), enc,
