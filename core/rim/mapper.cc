@@ -220,20 +220,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   IterationTiming it;
   double loss_sum = 0;
   const double train_start = Now();
-  for (int i = 0; i < n_iter; ++i) {
-    // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
-    // and takes it alone only to write. Nothing else writes the map, so the writes find it as the
-    // reads left it.
-    {
-      std::shared_lock lock(mu_);
-      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it, rays));
-    }
-    std::unique_lock lock(mu_);
-    auto loss = trainer_->Apply(train_decoder, &it);
-    if (!loss.ok()) return loss.status();
-    loss_sum += *loss;
-    map_version_.fetch_add(1);
-  }
+  RIM_RETURN_IF_ERROR(Iterate(n_iter, rays, train_decoder, nullptr, &it, &loss_sum).status());
   t.train_s = Now() - train_start;
   {
     std::unique_lock lock(mu_);
@@ -264,6 +251,28 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   return absl::OkStatus();
 }
 
+absl::StatusOr<int> Mapper::Iterate(int iterations, int rays, bool train_decoder,
+                                    const std::function<bool()>* keep_going, IterationTiming* it,
+                                    double* loss_sum) {
+  int done = 0;
+  while (done < iterations && (keep_going == nullptr || (*keep_going)())) {
+    // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
+    // and takes it alone only to write. Nothing else writes the map, so the writes find it as the
+    // reads left it.
+    {
+      std::shared_lock lock(mu_);
+      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, it, rays));
+    }
+    std::unique_lock lock(mu_);
+    auto loss = trainer_->Apply(train_decoder, it);
+    if (!loss.ok()) return loss.status();
+    *loss_sum += *loss;
+    map_version_.fetch_add(1);
+    ++done;
+  }
+  return done;
+}
+
 absl::StatusOr<int> Mapper::TrainBetweenFrames(int iterations, int rays_per_iteration,
                                                const std::function<bool()>& keep_going,
                                                StageTimings* timing) {
@@ -274,18 +283,11 @@ absl::StatusOr<int> Mapper::TrainBetweenFrames(int iterations, int rays_per_iter
   const bool train_decoder = frames_ < config_.decoder.freeze_after_frames;
   IterationTiming it;
   const double start = Now();
-  int done = 0;
-  while (done < iterations && keep_going()) {
-    {
-      std::shared_lock lock(mu_);
-      RIM_RETURN_IF_ERROR(trainer_->Prepare(*buffer_, outside_->rays, train_decoder, &it, rays));
-    }
-    std::unique_lock lock(mu_);
-    auto loss = trainer_->Apply(train_decoder, &it);
-    if (!loss.ok()) return loss.status();
-    map_version_.fetch_add(1);
-    ++done;
-  }
+  double loss_sum = 0;
+  absl::StatusOr<int> trained =
+      Iterate(iterations, rays, train_decoder, &keep_going, &it, &loss_sum);
+  if (!trained.ok()) return trained.status();
+  const int done = *trained;
   if (done > 0) {
     std::unique_lock lock(mu_);
     BumpVersions(train_decoder, nullptr);

@@ -29,6 +29,7 @@ class DeferredPoints;
 class DistanceField;
 struct IntBox;
 struct Surfel;
+struct IterationTiming;
 class LocalMap;
 class PointBuffer;
 class SlabSaver;
@@ -212,6 +213,12 @@ class Mapper {
   bool SlideTo(const Vec3d& position_W);
   void Preprocess(const PosedScan& scan, bool box_moved);
   void BumpVersions(bool decoder_changed, const IntBox* old_box);
+  // Up to `iterations` training iterations of `rays` rays, each while *keep_going (when given)
+  // says so; adds their losses to *loss_sum. Returns the iterations run. The caller holds
+  // frame_mu_; mu_ is taken per iteration (shared to read, alone to write).
+  absl::StatusOr<int> Iterate(int iterations, int rays, bool train_decoder,
+                              const std::function<bool()>* keep_going, IterationTiming* it,
+                              double* loss_sum);
   absl::Status SaveState(const std::string& path) const;
   absl::Status LoadState(const std::string& path, uint32_t* version);
   absl::Status SaveDeferred(const std::string& path) const;
