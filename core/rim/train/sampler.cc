@@ -73,7 +73,7 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
   for (uint64_t& s : seeds) s = rng_();
   auto run = [&](int task) {
     const int piece = task % kPieces;
-    SampleBatch& part = parts_[task];
+    SampleBatch& part = parts_[task].batch;
     part.Clear();
     FastRng rng(seeds[task]);
     if (task < kPieces) {
@@ -101,10 +101,11 @@ void Sampler::Sample(const PointBuffer& buffer, const OutsideRays& outside, cons
   }
   // In piece order: the rays inside, then the outside rays.
   size_t n = 0;
-  for (const SampleBatch& part : parts_) n += part.size();
+  for (const Piece& piece : parts_) n += piece.batch.size();
   out->xyz.reserve(3 * n);
   out->labels.reserve(n);
-  for (const SampleBatch& part : parts_) {
+  for (const Piece& piece : parts_) {
+    const SampleBatch& part = piece.batch;
     const int32_t base = int32_t(out->labels.size());
     out->xyz.insert(out->xyz.end(), part.xyz.begin(), part.xyz.end());
     out->labels.insert(out->labels.end(), part.labels.begin(), part.labels.end());

@@ -111,7 +111,12 @@ class Sampler {
   SamplerConfig config_;
   float sigma_m_;
   std::mt19937_64 rng_;
-  SampleBatch parts_[2 * kPieces];  // per piece, reused from batch to batch
+  // Per piece, reused from batch to batch; a cache line or more each, since pieces drawn on
+  // different threads at once write their vectors' ends for every sample.
+  struct alignas(64) Piece {
+    SampleBatch batch;
+  };
+  Piece parts_[2 * kPieces];
 };
 
 }  // namespace rim

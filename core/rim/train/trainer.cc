@@ -250,18 +250,18 @@ void Trainer::UpdateFeatures(const float* grad_features) {
   // A task only ever waits for tasks with smaller numbers, which some thread has already taken,
   // so the waits end; with one thread nothing waits. Without barriers between the stages, the
   // levels' unequal scatters and Adam passes do not leave a thread idle.
-  std::vector<std::atomic<int>>& scattered = stage_flags_;  // per level
-  if (int(scattered.size()) != L) scattered = std::vector<std::atomic<int>>(L);
-  for (auto& f : scattered) f.store(0, std::memory_order_relaxed);
+  std::vector<StageFlag>& scattered = stage_flags_;  // per level
+  if (int(scattered.size()) != L) scattered = std::vector<StageFlag>(L);
+  for (auto& f : scattered) f.done.store(0, std::memory_order_relaxed);
   const int mark_task = L;
   pool_.Run(L + 1 + L * chunks, [&](int task) {
     if (task < L) {
       grad_.ScatterLevel(map_, encoding_, grad_features, task);
-      scattered[task].store(1, std::memory_order_release);
+      scattered[task].done.store(1, std::memory_order_release);
     } else if (task != mark_task) {
       const int adam = task - L - 1;
       const int l = adam / chunks, c = adam % chunks;
-      while (scattered[l].load(std::memory_order_acquire) == 0) CpuRelax();
+      while (scattered[l].done.load(std::memory_order_acquire) == 0) CpuRelax();
       SparseGradient::Level& g = grad_.level(l);
       // Lazy Adam: only rows with a gradient this iteration move, each with its own step count.
       const size_t n = g.touched.size();

@@ -75,7 +75,13 @@ class Trainer {
   TrainStepOutput step_out_;
   SparseGradient grad_;
   AdamBiasTable bias_;
-  std::vector<std::atomic<int>> stage_flags_;  // UpdateFeatures: which levels are scattered
+  // UpdateFeatures: which levels are scattered. One cache line each: the Adam tasks spin on them
+  // while the scatter runs on the other thread, and a flag that shared its line with data the
+  // scatter writes (another heap block) slowed every such write (BENCHMARK.md).
+  struct alignas(64) StageFlag {
+    std::atomic<int> done{0};
+  };
+  std::vector<StageFlag> stage_flags_;
   bool grad_ready_ = false;
   bool prepared_ = false;                        // Prepare left a batch for Apply
   std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
