@@ -42,7 +42,7 @@ class SparseGradient {
   void ScatterLevel(LocalMap* map, const LocalEncoding& enc, const float* grad_features, int l);
   // One cache line or more each: levels are scattered on different threads at once, and the
   // scatter writes its level's vector ends for every new row; levels sharing a line made every
-  // such write contend with the other thread (BENCHMARK.md, "False sharing in the scatter").
+  // such write contend with the other thread (BENCHMARK.md, "False sharing in the training step").
   struct alignas(64) Level {
     std::vector<int64_t> touched;  // slots with a gradient row, in first-touch order
     std::vector<float> grad;       // row r at [r·D, (r+1)·D) for r < touched.size()
