@@ -75,9 +75,10 @@ class Trainer {
   TrainStepOutput step_out_;
   SparseGradient grad_;
   AdamBiasTable bias_;
-  // UpdateFeatures: which levels are scattered. One cache line each: the Adam tasks spin on them
-  // while the scatter runs on the other thread, and a flag that shared its line with data the
-  // scatter writes (another heap block) slowed every such write (BENCHMARK.md).
+  // UpdateFeatures: which levels are scattered. One cache line each, so that the Adam tasks
+  // spinning on a flag never read a line that the scatter on the other thread writes (a guard:
+  // aligning these alone did not change the step; aligning SparseGradient::Level did,
+  // BENCHMARK.md, "False sharing in the training step").
   struct alignas(64) StageFlag {
     std::atomic<int> done{0};
   };
