@@ -173,7 +173,10 @@ absl::StatusOr<float> Trainer::Apply(bool train_decoder, IterationTiming* timing
 }
 
 namespace {
-constexpr size_t kPrefetchRows = 8;
+// How far ahead the Adam pass asks for a row's lines. Each row needs three random lines (features,
+// moments, step count); 8 rows ahead left the pass waiting on rows still in flight, and 16 took
+// 9 % off the step (32 did no better; BENCHMARK.md, "Prefetch distances").
+constexpr size_t kPrefetchRows = 16;
 
 #if defined(__x86_64__)
 // AdamUpdateRow for one D = 8 row, four lanes at a time: the same multiplies, adds, square roots
