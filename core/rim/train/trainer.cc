@@ -1,5 +1,6 @@
 #include "rim/train/trainer.h"
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -27,6 +28,63 @@ double Now() {
 // Eikonal probes are taken around at most this many endpoint samples per iteration.
 constexpr int kMaxEikonalPoints = 1024;
 }  // namespace
+
+void OrderBatchByCell(const LocalMap& map, SampleBatch* batch, BatchOrderScratch* scratch) {
+  const size_t n = batch->size();
+  if (n < 2 || !map.placed()) return;
+  // Cells of S times the coarsest level's size, numbered in the box (x slowest, z fastest, as the
+  // storage's slots).
+  constexpr int S = BatchOrderScratch::kCellScale;
+  const int lc = map.geometry().levels() - 1;
+  const Int3 cells = (map.geometry().cells(lc) + Int3::Constant(S - 1)) / S;
+  const Int3 lo = map.LatticeBox(lc).lo;
+  const float inv = float(1.0 / (S * map.geometry().voxel_m(lc)));
+  const float lo_f[3] = {float(lo[0]) / S, float(lo[1]) / S, float(lo[2]) / S};
+  const size_t buckets = size_t(cells.x()) * size_t(cells.y()) * size_t(cells.z());
+  std::vector<uint32_t>& key = scratch->keys;
+  std::vector<uint32_t>& start = scratch->starts;
+  key.resize(n);
+  start.assign(buckets + 1, 0);
+  const float* xyz = batch->xyz.data();
+  for (size_t i = 0; i < n; ++i) {
+    int g[3];
+    // Truncation is the floor for the box's cells (u >= 0); anything else is clamped into the box.
+    // (std::floor is a library call without SSE4.1: three of them a sample cost more than the
+    // whole sort.) Only the order depends on it, never a value.
+    for (int a = 0; a < 3; ++a)
+      g[a] = std::clamp(int(xyz[3 * i + a] * inv - lo_f[a]), 0, cells[a] - 1);
+    key[i] = uint32_t((size_t(g[0]) * size_t(cells.y()) + size_t(g[1])) * size_t(cells.z()) +
+                      size_t(g[2]));
+    ++start[key[i] + 1];
+  }
+  for (size_t k = 1; k <= buckets; ++k) start[k] += start[k - 1];
+  // A stable counting sort: within a cell, the samples keep the sampler's order. (Split over the
+  // pool's two threads it was slower: two more regions, and each thread's writes land in the
+  // other's cache.)
+  std::vector<float>& xyz_out = scratch->xyz;
+  std::vector<float>& labels_out = scratch->labels;
+  std::vector<int32_t>& moved_to = scratch->moved_to;
+  // The batch's arrays and these trade places: with the same capacity, so that the sampler's next
+  // batch fills them without a reallocation (and fresh pages) each iteration.
+  xyz_out.reserve(batch->xyz.capacity());
+  labels_out.reserve(batch->labels.capacity());
+  xyz_out.resize(3 * n);
+  labels_out.resize(n);
+  moved_to.resize(n);
+  const float* labels = batch->labels.data();
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t at = start[key[i]]++;
+    moved_to[i] = int32_t(at);
+    float* to = &xyz_out[3 * size_t(at)];  // three stores (std::copy_n became a memmove call)
+    to[0] = xyz[3 * i];
+    to[1] = xyz[3 * i + 1];
+    to[2] = xyz[3 * i + 2];
+    labels_out[at] = labels[i];
+  }
+  batch->xyz.swap(xyz_out);
+  batch->labels.swap(labels_out);
+  for (int32_t& e : batch->endpoints) e = moved_to[size_t(e)];
+}
 
 Trainer::Trainer(const MapperConfig& config, LocalMap* map, Decoder* decoder)
     : config_(config),
@@ -92,6 +150,7 @@ absl::Status Trainer::PrepareBatch(bool train_decoder, IterationTiming* timing) 
   prepared_ = false;
   if (batch_.size() == 0) return absl::OkStatus();
   const double t0 = Now();
+  OrderBatchByCell(*map_, &batch_, &order_scratch_);
   xyz_ = batch_.xyz;
   if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
   const int rows = int(xyz_.size() / 3);
