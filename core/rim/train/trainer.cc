@@ -49,8 +49,8 @@ void OrderBatchByCell(const LocalMap& map, SampleBatch* batch, BatchOrderScratch
   for (size_t i = 0; i < n; ++i) {
     int g[3];
     // Truncation is the floor for the box's cells (u >= 0); anything else is clamped into the box.
-    // (std::floor is a library call without SSE4.1: three of them a sample cost more than the
-    // whole sort.) Only the order depends on it, never a value.
+    // (std::floor is a library call without SSE4.1: about a tenth of the sort.) Only the order
+    // depends on it, never a value.
     for (int a = 0; a < 3; ++a)
       g[a] = std::clamp(int(xyz[3 * i + a] * inv - lo_f[a]), 0, cells[a] - 1);
     key[i] = uint32_t((size_t(g[0]) * size_t(cells.y()) + size_t(g[1])) * size_t(cells.z()) +
@@ -234,7 +234,8 @@ absl::StatusOr<float> Trainer::Apply(bool train_decoder, IterationTiming* timing
 namespace {
 // How far ahead the Adam pass asks for a row's lines. Each row needs three random lines (features,
 // moments, step count); 8 rows ahead left the pass waiting on rows still in flight, and 16 took
-// 9 % off the step (32 did no better; BENCHMARK.md, "Prefetch distances").
+// 9 % off the step (32 did no better; BENCHMARK.md, "Prefetch distances, and training samples in
+// cell order").
 constexpr size_t kPrefetchRows = 16;
 
 #if defined(__x86_64__)

@@ -33,10 +33,10 @@ void UpdateTouchedRows(const AdamHyper& hyper, const AdamBiasTable& bias,
 // scatter and the Adam pass each visit every sample's corner rows in batch order, and they are
 // bound by how many cache lines are in flight: in the sampler's order (rays drawn at random) nearly
 // every row is a miss, while samples of one cell share most of their rows and neighbouring cells'
-// rows lie close in memory. Frame/far (2048-ray batches): step −10 to −17 %, encode −6 to −10 %,
-// the frame −3 to −5 % with the sort's 0.15–0.2 ms an iteration paid (BENCHMARK.md, "Training
-// samples in cell order"). The map learns the same sums in another order: C-L1 the same within
-// 0.2 % on held-out cities.
+// rows lie close in memory. Frame/far (2048-ray batches): step −8 to −18 %, encode −6 to −10 %,
+// the frame −2 to −7 % with the sort's 0.15–0.2 ms an iteration paid (BENCHMARK.md,
+// "Prefetch distances, and training samples in cell order"). The map learns the same sums in
+// another order: C-L1 the same within 0.2 % on held-out cities.
 struct BatchOrderScratch {
   static constexpr int kCellScale = 2;  // cells of this many coarsest-level cells a side
   std::vector<uint32_t> keys, starts;
