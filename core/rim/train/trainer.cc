@@ -233,10 +233,11 @@ absl::StatusOr<float> Trainer::Apply(bool train_decoder, IterationTiming* timing
 
 namespace {
 // How far ahead the Adam pass asks for a row's lines. Each row needs three random lines (features,
-// moments, step count); 8 rows ahead left the pass waiting on rows still in flight, and 16 took
-// 9 % off the step (32 did no better; BENCHMARK.md, "Prefetch distances, and training samples in
-// cell order").
-constexpr size_t kPrefetchRows = 16;
+// moments, step count); 8 rows ahead left the pass waiting on rows still in flight. With batches
+// in random order 16 took 9 % off the step and 32 did no better; in cell order (OrderBatchByCell)
+// 32 took another 4–10 % off, and 64 did no better (BENCHMARK.md, "Prefetch distances, and
+// training samples in cell order").
+constexpr size_t kPrefetchRows = 32;
 
 #if defined(__x86_64__)
 // AdamUpdateRow for one D = 8 row, four lanes at a time: the same multiplies, adds, square roots
