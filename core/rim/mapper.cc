@@ -475,8 +475,7 @@ absl::Status Mapper::QuerySdf(const float* xyz, size_t n, bool want_gradient,
   return absl::OkStatus();
 }
 
-std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
-                                           const std::vector<IntBox>& regions) const {
+std::vector<Int3> Mapper::RefreshVoxels(const Int3& key, const std::vector<IntBox>& regions) const {
   const MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
   std::vector<Int3> voxels = rim::ObservedVoxels(src, key);
   if (!regions.empty()) {
@@ -488,11 +487,13 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
                                 }),
                  voxels.end());
   }
+  return voxels;
+}
+
+void Mapper::ExtractSurfels(const Int3& key, const std::vector<Int3>& voxels, size_t begin,
+                            size_t m, const std::vector<Surfel>* before,
+                            std::vector<Surfel>* out) const {
   const double s = geometry_->leaf_m();
-  std::vector<Surfel> out;
-  std::mutex out_mu;
-  // Where the last refresh found the zero level, by voxel: the next refresh starts there.
-  const std::shared_ptr<const std::vector<Surfel>> before = distance_->Surfels(key);
   // Newton steps onto the zero level, p ← p − f ∇f / |∇f|². A voxel that held a surfel starts
   // from it: the level moves millimetres between refreshes, so one step lands on it, and the
   // voxel keeps the point when that step was short. Any other voxel, and one whose step from its
@@ -500,7 +501,7 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
   // first landed. Either way the voxel keeps the point when it lies in it (with a hair of slack)
   // and the last step was short.
   enum Stage : uint8_t { kFromSurfel, kFirst, kSecond, kDone, kDropped };
-  ForChunks(voxels.size(), config_.train.threads, [&](size_t begin, size_t m) {
+  {
     std::vector<float> p(3 * m), f(m), g(3 * m);
     std::vector<uint8_t> stage(m, kFirst);
     std::vector<float> old_n(3 * m);
@@ -569,7 +570,6 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
     }
     for (size_t i = 0; i < m; ++i)
       if (stage[i] == kDone) live.push_back(i);
-    std::vector<Surfel> mine;
     for (size_t i : live) {
       const Int3& v = voxels[begin + i];
       bool inside = true;
@@ -584,12 +584,9 @@ std::vector<Surfel> Mapper::ExtractSurfels(const Int3& key,
         sf.n[a] = gi[a] / norm;
       }
       sf.voxel = distance_->VoxelIndex(key, v);
-      mine.push_back(sf);
+      out->push_back(sf);
     }
-    std::lock_guard<std::mutex> lock(out_mu);
-    out.insert(out.end(), mine.begin(), mine.end());
-  });
-  return out;
+  }
 }
 
 bool Mapper::RefreshDueLocked(bool* overdue) const {
@@ -654,11 +651,46 @@ double Mapper::RefreshDistanceField() {
     return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
   });
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
-  // Extraction runs each sub-map's voxels over the threads in turn; the normal fits and tree
-  // builds of Replace are one thread's work per sub-map, so those run side by side (sub-maps
-  // share nothing there).
+  // Extraction runs in pieces of at most kRefreshPiece voxels of one sub-map, all sub-maps' pieces
+  // over the threads at once: most sub-maps of a refresh hold fewer voxels than two threads'
+  // worth of pieces, and extracting them one after another left a core idle. A voxel's surfel
+  // depends on that voxel alone, and Replace sorts each sub-map's surfels, so the split changes
+  // nothing. The normal fits and tree builds of Replace are one thread's work per sub-map, so
+  // those run side by side too (sub-maps share nothing there).
+  const int threads = std::max(config_.train.threads, 1);
+  std::vector<std::vector<Int3>> voxels(keys.size());
+  // Where the last refresh found the zero level, by voxel: the next refresh starts there.
+  std::vector<std::shared_ptr<const std::vector<Surfel>>> before(keys.size());
+  eval::ParallelFor(int64_t(keys.size()), 1, threads, [&](int64_t begin, int64_t end) {
+    for (int64_t k = begin; k < end; ++k) {
+      voxels[size_t(k)] = RefreshVoxels(keys[size_t(k)], regions);
+      before[size_t(k)] = distance_->Surfels(keys[size_t(k)]);
+    }
+  });
+  struct Piece {
+    size_t key, begin, count;
+  };
+  constexpr size_t kRefreshPiece = 1024;
+  std::vector<Piece> pieces;
+  for (size_t k = 0; k < keys.size(); ++k)
+    for (size_t b = 0; b < voxels[k].size(); b += kRefreshPiece)
+      pieces.push_back({k, b, std::min(kRefreshPiece, voxels[k].size() - b)});
+  std::vector<std::vector<Surfel>> found(pieces.size());
+  eval::ParallelFor(int64_t(pieces.size()), 1, threads, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const Piece& piece = pieces[size_t(i)];
+      ExtractSurfels(keys[piece.key], voxels[piece.key], piece.begin, piece.count,
+                     before[piece.key].get(), &found[size_t(i)]);
+    }
+  });
   std::vector<std::vector<Surfel>> fresh(keys.size());
-  for (size_t k = 0; k < keys.size(); ++k) fresh[k] = ExtractSurfels(keys[k], regions);
+  std::vector<size_t> counts(keys.size(), 0);
+  for (size_t i = 0; i < pieces.size(); ++i) counts[pieces[i].key] += found[i].size();
+  for (size_t k = 0; k < keys.size(); ++k) fresh[k].reserve(counts[k]);
+  for (size_t i = 0; i < pieces.size(); ++i) {
+    std::vector<Surfel>& to = fresh[pieces[i].key];
+    to.insert(to.end(), found[i].begin(), found[i].end());
+  }
   eval::ParallelFor(int64_t(keys.size()), 1, std::max(config_.train.threads, 1),
                     [&](int64_t begin, int64_t end) {
                       for (int64_t k = begin; k < end; ++k)

@@ -226,8 +226,13 @@ class Mapper {
   absl::Status LoadDistance(const std::string& path);
   // Network values (and gradients, 3 per point, when `grad`) at n points; caller holds mu_.
   void EvalNeural(const float* xyz, size_t n, float* sdf, float* grad, uint8_t* observed) const;
-  // Surfels of sub-map `key` in `regions` (all of it when empty); caller holds mu_ shared.
-  std::vector<Surfel> ExtractSurfels(const Int3& key, const std::vector<IntBox>& regions) const;
+  // The observed voxels of sub-map `key` in `regions` (all of it when empty), whose surfels a
+  // refresh extracts; caller holds mu_ shared.
+  std::vector<Int3> RefreshVoxels(const Int3& key, const std::vector<IntBox>& regions) const;
+  // Appends to `out` the surfels of voxels[begin, begin + m) of sub-map `key`, starting from
+  // `before` (the sub-map's surfels at the last refresh, or null); caller holds mu_ shared.
+  void ExtractSurfels(const Int3& key, const std::vector<Int3>& voxels, size_t begin, size_t m,
+                      const std::vector<Surfel>* before, std::vector<Surfel>* out) const;
   // Rebuilds the distance field's returns (DistanceField::ReplaceReturns) in the deferred
   // sub-maps that changed since the last rebuild: every kept ray whose endpoint voxel the map
   // has not observed as surface. Under refresh_mu_ and a shared mu_.
