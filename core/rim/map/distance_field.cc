@@ -342,12 +342,17 @@ void DistanceField::Replace(const Int3& key, const std::vector<IntBox>& regions,
     if (it != parts_.end()) old = it->second;
   }
   if (old && !regions.empty()) {
-    for (const Surfel& s : old->surfels) {
-      const Int3 g = VoxelOf(key, s.voxel);
+    // Kept: the old surfels outside the regions, appended with no spare capacity (the part keeps
+    // this vector).
+    std::vector<uint32_t> kept;
+    for (uint32_t i = 0; i < uint32_t(old->surfels.size()); ++i) {
+      const Int3 g = VoxelOf(key, old->surfels[i].voxel);
       bool inside = false;
       for (const IntBox& b : regions) inside = inside || b.Contains(g);
-      if (!inside) fresh.push_back(s);
+      if (!inside) kept.push_back(i);
     }
+    fresh.reserve(fresh.size() + kept.size());
+    for (uint32_t i : kept) fresh.push_back(old->surfels[i]);
   }
   // A fixed order, whatever order the regions were extracted in: saved bytes and tree layout
   // depend on the map alone.
