@@ -16,6 +16,8 @@
 #include <set>
 #include <thread>
 
+#include "rim/base/binary_io.h"
+#include "rim/map/distance_field.h"
 #include "rim/map/map_geometry.h"
 #include "rim/map/submap_store.h"
 #include "rim/model/decoder.h"
@@ -678,6 +680,33 @@ TEST(MapperTrainingPathTest, ThreadCountDoesNotChangeTheMap) {
   const auto three = MapTwoFrames({"train.threads=3"});
   EXPECT_EQ(one.first, three.first);
   EXPECT_EQ(one.second, three.second);
+}
+
+// A refresh extracts its sub-maps' voxels in pieces over the training threads: the field it
+// builds (every surfel, its normal and its tree order, as saved) is the same on one thread as on
+// three, for a field of several pieces whose box has moved (a strip it left is extracted too).
+std::string FieldAfterThreeFrames(const std::string& threads) {
+  const AnalyticScene scene = AnalyticScene::Default();
+  auto mapper =
+      Mapper::Create(SmallConfig({threads, "grid.half_extent_x_m=4", "grid.half_extent_y_m=4",
+                                  "train.iterations=10", "sampler.rays_per_iteration=1024"}));
+  EXPECT_TRUE(mapper.ok());
+  for (int i = 0; i < 3; ++i)
+    EXPECT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, 0.3f * float(i), uint32_t(i + 1), 64)).ok());
+  (*mapper)->RefreshDistanceField();
+  EXPECT_GT((*mapper)->distance_field().Stats().surfels, 3 * 1024)
+      << "too few surfels for a refresh of several pieces";
+  ByteWriter w;
+  (*mapper)->distance_field().Serialize(&w);
+  return w.data();
+}
+
+TEST(MapperTrainingPathTest, ThreadCountDoesNotChangeTheDistanceField) {
+  const std::string one = FieldAfterThreeFrames("train.threads=1");
+  const std::string three = FieldAfterThreeFrames("train.threads=3");
+  ASSERT_FALSE(one.empty());
+  EXPECT_TRUE(one == three) << "the fields differ (" << one.size() << " and " << three.size()
+                            << " bytes)";
 }
 
 TEST(MapperTrainingPathTest, FastStepTrainsLikeTheLibtorchReference) {
