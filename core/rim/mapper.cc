@@ -501,91 +501,88 @@ void Mapper::ExtractSurfels(const Int3& key, const std::vector<Int3>& voxels, si
   // first landed. Either way the voxel keeps the point when it lies in it (with a hair of slack)
   // and the last step was short.
   enum Stage : uint8_t { kFromSurfel, kFirst, kSecond, kDone, kDropped };
-  {
-    std::vector<float> p(3 * m), f(m), g(3 * m);
-    std::vector<uint8_t> stage(m, kFirst);
-    std::vector<float> old_n(3 * m);
-    auto centre = [&](size_t i) {
-      for (int a = 0; a < 3; ++a) p[3 * i + a] = float((voxels[begin + i][a] + 0.5) * s);
-    };
-    for (size_t i = 0; i < m; ++i) {
-      centre(i);
-      if (!before) continue;
-      const uint32_t index = distance_->VoxelIndex(key, voxels[begin + i]);
-      auto it = std::lower_bound(before->begin(), before->end(), index,
-                                 [](const Surfel& x, uint32_t v) { return x.voxel < v; });
-      if (it == before->end() || it->voxel != index) continue;
-      for (int a = 0; a < 3; ++a) p[3 * i + a] = it->p[a];
-      for (int a = 0; a < 3; ++a) old_n[3 * i + a] = it->n[a];
-      stage[i] = kFromSurfel;
-    }
-    std::vector<size_t> live;
-    std::vector<float> q, fv, gv;
-    while (true) {
-      live.clear();
-      for (size_t i = 0; i < m; ++i)
-        if (stage[i] < kDone) live.push_back(i);
-      if (live.empty()) break;
-      q.resize(3 * live.size());
-      fv.resize(live.size());
-      gv.resize(3 * live.size());
-      for (size_t k = 0; k < live.size(); ++k)
-        for (int a = 0; a < 3; ++a) q[3 * k + a] = p[3 * live[k] + a];
-      EvalNeural(q.data(), live.size(), fv.data(), gv.data(), nullptr);
-      for (size_t k = 0; k < live.size(); ++k) {
-        const size_t i = live[k];
-        const float* gk = &gv[3 * k];
-        const float g2 = gk[0] * gk[0] + gk[1] * gk[1] + gk[2] * gk[2];
-        // The Newton step's length |f| / |∇f| (the field's slope is not 1: along-ray labels
-        // steepen it where rays graze a surface): a surface farther than the voxel's half
-        // diagonal from its centre does not cross it.
-        const float len = std::sqrt(std::max(g2, 1e-12f));
-        const float step_m = std::abs(fv[k]) / len;
-        bool ok = g2 > 0.01f && step_m <= (stage[i] == kFirst ? 0.9 : 0.5) * s;
-        if (stage[i] == kFromSurfel) {
-          // Only where the level barely moved (a quarter voxel) and did not turn (26°): a voxel
-          // whose field changes more goes back to the centre's two steps, which decide again
-          // whether the level crosses it. Without these bounds gradients at 0.1–2 m came out
-          // worse on the dev city (BENCHMARK.md, "A cheaper distance refresh").
-          const float* n = &old_n[3 * i];
-          ok = ok && step_m <= 0.25 * s &&
-               (gk[0] * n[0] + gk[1] * n[1] + gk[2] * n[2]) >= 0.9f * len;
-        }
-        if (!ok) {
-          if (stage[i] == kFromSurfel) {
-            stage[i] = kFirst;
-            centre(i);
-          } else {
-            stage[i] = kDropped;
-          }
-          continue;
-        }
-        f[i] = fv[k];
-        for (int a = 0; a < 3; ++a) {
-          g[3 * i + a] = gk[a];
-          p[3 * i + a] -= fv[k] * gk[a] / g2;
-        }
-        stage[i] = stage[i] == kFirst ? kSecond : kDone;
-      }
-    }
+  std::vector<float> p(3 * m), f(m), g(3 * m);
+  std::vector<uint8_t> stage(m, kFirst);
+  std::vector<float> old_n(3 * m);
+  auto centre = [&](size_t i) {
+    for (int a = 0; a < 3; ++a) p[3 * i + a] = float((voxels[begin + i][a] + 0.5) * s);
+  };
+  for (size_t i = 0; i < m; ++i) {
+    centre(i);
+    if (!before) continue;
+    const uint32_t index = distance_->VoxelIndex(key, voxels[begin + i]);
+    auto it = std::lower_bound(before->begin(), before->end(), index,
+                               [](const Surfel& x, uint32_t v) { return x.voxel < v; });
+    if (it == before->end() || it->voxel != index) continue;
+    for (int a = 0; a < 3; ++a) p[3 * i + a] = it->p[a];
+    for (int a = 0; a < 3; ++a) old_n[3 * i + a] = it->n[a];
+    stage[i] = kFromSurfel;
+  }
+  std::vector<size_t> live;
+  std::vector<float> q, fv, gv;
+  while (true) {
+    live.clear();
     for (size_t i = 0; i < m; ++i)
-      if (stage[i] == kDone) live.push_back(i);
-    for (size_t i : live) {
-      const Int3& v = voxels[begin + i];
-      bool inside = true;
-      for (int a = 0; a < 3; ++a)
-        inside = inside && p[3 * i + a] >= (v[a] - 0.05) * s && p[3 * i + a] <= (v[a] + 1.05) * s;
-      if (!inside) continue;
-      Surfel sf;
-      const float* gi = &g[3 * i];
-      const float norm = std::sqrt(gi[0] * gi[0] + gi[1] * gi[1] + gi[2] * gi[2]);
-      for (int a = 0; a < 3; ++a) {
-        sf.p[a] = p[3 * i + a];
-        sf.n[a] = gi[a] / norm;
+      if (stage[i] < kDone) live.push_back(i);
+    if (live.empty()) break;
+    q.resize(3 * live.size());
+    fv.resize(live.size());
+    gv.resize(3 * live.size());
+    for (size_t k = 0; k < live.size(); ++k)
+      for (int a = 0; a < 3; ++a) q[3 * k + a] = p[3 * live[k] + a];
+    EvalNeural(q.data(), live.size(), fv.data(), gv.data(), nullptr);
+    for (size_t k = 0; k < live.size(); ++k) {
+      const size_t i = live[k];
+      const float* gk = &gv[3 * k];
+      const float g2 = gk[0] * gk[0] + gk[1] * gk[1] + gk[2] * gk[2];
+      // The Newton step's length |f| / |∇f| (the field's slope is not 1: along-ray labels
+      // steepen it where rays graze a surface): a surface farther than the voxel's half
+      // diagonal from its centre does not cross it.
+      const float len = std::sqrt(std::max(g2, 1e-12f));
+      const float step_m = std::abs(fv[k]) / len;
+      bool ok = g2 > 0.01f && step_m <= (stage[i] == kFirst ? 0.9 : 0.5) * s;
+      if (stage[i] == kFromSurfel) {
+        // Only where the level barely moved (a quarter voxel) and did not turn (26°): a voxel
+        // whose field changes more goes back to the centre's two steps, which decide again
+        // whether the level crosses it. Without these bounds gradients at 0.1–2 m came out
+        // worse on the dev city (BENCHMARK.md, "A cheaper distance refresh").
+        const float* n = &old_n[3 * i];
+        ok = ok && step_m <= 0.25 * s && (gk[0] * n[0] + gk[1] * n[1] + gk[2] * n[2]) >= 0.9f * len;
       }
-      sf.voxel = distance_->VoxelIndex(key, v);
-      out->push_back(sf);
+      if (!ok) {
+        if (stage[i] == kFromSurfel) {
+          stage[i] = kFirst;
+          centre(i);
+        } else {
+          stage[i] = kDropped;
+        }
+        continue;
+      }
+      f[i] = fv[k];
+      for (int a = 0; a < 3; ++a) {
+        g[3 * i + a] = gk[a];
+        p[3 * i + a] -= fv[k] * gk[a] / g2;
+      }
+      stage[i] = stage[i] == kFirst ? kSecond : kDone;
     }
+  }
+  for (size_t i = 0; i < m; ++i)
+    if (stage[i] == kDone) live.push_back(i);
+  for (size_t i : live) {
+    const Int3& v = voxels[begin + i];
+    bool inside = true;
+    for (int a = 0; a < 3; ++a)
+      inside = inside && p[3 * i + a] >= (v[a] - 0.05) * s && p[3 * i + a] <= (v[a] + 1.05) * s;
+    if (!inside) continue;
+    Surfel sf;
+    const float* gi = &g[3 * i];
+    const float norm = std::sqrt(gi[0] * gi[0] + gi[1] * gi[1] + gi[2] * gi[2]);
+    for (int a = 0; a < 3; ++a) {
+      sf.p[a] = p[3 * i + a];
+      sf.n[a] = gi[a] / norm;
+    }
+    sf.voxel = distance_->VoxelIndex(key, v);
+    out->push_back(sf);
   }
 }
 
