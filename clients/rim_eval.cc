@@ -1,6 +1,7 @@
 // rim_eval PRED.ply GT.ply [--json]: mesh accuracy against a ground truth (DESIGN.md §4.3).
 // Prints Acc, Comp, Chamfer-L1 (cm) and precision, recall, F-score (%), with the drop and the cap
-// of the paper's protocol ("standard") and without them ("strict"), as a table or as JSON.
+// of the paper's protocol ("standard") and without them ("strict"), as a table or as JSON, and
+// the share (and area) of the prediction farther than 20 cm from the GT: its floaters.
 // A PLY without faces (e.g. rim_sim's gt_observed.ply) is taken as a point cloud: its vertices are
 // used as they are instead of area samples ("gt_kind": "points").
 // --box HX,HY,ZMIN,ZMAX --seq DIR evaluates both inside the union of the local boxes about the
@@ -255,8 +256,11 @@ std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
       ", \"cap_cm\": ", JsonNumber(100 * o.cap_m, 3),
       ", \"fscore_threshold_cm\": ", JsonNumber(100 * o.fscore_m, 3),
       ", \"crop_to_gt\": ", o.crop_to_gt ? "true" : "false",
-      ", \"crop_margin_cm\": ", JsonNumber(100 * o.crop_margin_m, 3), ", \"seed\": ", o.seed, "}",
-      ",\n  \"box\": ", BoxJson(args), ",\n  \"seconds\": ", JsonNumber(seconds, 3), "\n}\n");
+      ", \"crop_margin_cm\": ", JsonNumber(100 * o.crop_margin_m, 3), ", \"seed\": ", o.seed,
+      ", \"floater_cm\": ", JsonNumber(100 * o.floater_m, 3), "}", ",\n  \"box\": ", BoxJson(args),
+      ",\n  \"seconds\": ", JsonNumber(seconds, 3),
+      ",\n  \"floater_share\": ", JsonNumber(r.floater_share, 6),
+      ", \"floater_area_m2\": ", AreaJson(r.pred_kind, r.floater_area_m2), "\n}\n");
 }
 
 std::string TableRow(const char* name, const Metrics& m) {
@@ -296,6 +300,11 @@ std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
                         100 * o.drop_m, r.pred_dropped, pct(r.pred_dropped, r.pred_points),
                         100 * o.cap_m, r.gt_capped, pct(r.gt_capped, r.gt_points));
   absl::StrAppend(&out, "strict: no drop, no cap (floaters count)\n");
+  absl::StrAppendFormat(&out, "Floaters (> %g cm): %.2f %% of predicted %s\n", 100 * o.floater_m,
+                        100 * r.floater_share,
+                        r.pred_kind == InputKind::kPoints
+                            ? std::string("points")
+                            : absl::StrFormat("area (%.2f m^2)", r.floater_area_m2));
   absl::StrAppendFormat(
       &out, "F-score threshold %g cm; crop to GT box: %s; seed %d; %.1f s\n", 100 * o.fscore_m,
       o.crop_to_gt ? absl::StrFormat("on (+%g cm)", 100 * o.crop_margin_m) : std::string("off"),

@@ -589,6 +589,133 @@ TEST(MeshEvalBoxUnionTest, MeshesAreSampledInsideTheUnion) {
       << none.status();
 }
 
+// --- Floaters ------------------------------------------------------------------------------------
+
+// The square [1, 2] x [1, 2] at height z: 1 m^2.
+Mesh PatchZ(float z) { return PlaneZ(z, 1, 2, 1, 2); }
+
+TEST(MeshEvalFloaterTest, PatchAboveAPlaneIsItsAreaShare) {
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);  // 16 m^2
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;  // keeps the patch inside the padded box of the flat GT
+  const auto r = EvaluateMeshes(Merged(gt, PatchZ(0.5f)), gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->pred_area_m2, 17.0, 1e-4);
+  EXPECT_NEAR(r->floater_share, 1.0 / 17.0, 0.02 / 17.0);
+  EXPECT_NEAR(r->floater_area_m2, 1.0, 0.02);
+  // Without a box union every drawn sample is kept: the area is the share of pred_area_m2.
+  EXPECT_NEAR(r->floater_area_m2, r->floater_share * r->pred_area_m2, 1e-9);
+}
+
+TEST(MeshEvalFloaterTest, ShareIsOfAreaNotOfAveragedPoints) {
+  // A patch at 45 degrees crosses more voxels per square metre than the ground does, so the
+  // averaged points over-count it: the share must weigh each by the samples it stands for.
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);
+  // From z = 0.525 to 1.525 over [1, 2] x [1, 2]: sqrt(2) m^2, crossing two voxels per column
+  // (half a voxel off the voxel corners, where it would cross one).
+  Mesh tilted;
+  tilted.vertices = {{1, 1, 0.525f}, {2, 1, 0.525f}, {2, 2, 1.525f}, {1, 2, 1.525f}};
+  tilted.faces = {{0, 1, 2}, {0, 2, 3}};
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 2.0;
+  options.voxel_m = 0.05;  // ~20 samples per voxel on the patch
+  const auto r = EvaluateMeshes(Merged(gt, tilted), gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  const double want = std::sqrt(2.0) / (16 + std::sqrt(2.0));
+  EXPECT_NEAR(r->floater_share, want, 0.02 * want);
+  EXPECT_NEAR(r->floater_area_m2, std::sqrt(2.0), 0.02 * std::sqrt(2.0));
+  // The plain count of averaged points beyond 20 cm (all of the patch) is well off.
+  const double point_share = static_cast<double>(r->pred_dropped) / r->pred_points;
+  EXPECT_GT(point_share, 1.2 * want);
+}
+
+TEST(MeshEvalFloaterTest, NoFloatersWhenThePredictionIsTheGt) {
+  const Mesh gt = Merged(PlaneZ(0, 0, 4, 0, 4), Rectangle(0, 4, 0, 4, 0, 2));  // ground and wall
+  const auto r = EvaluateMeshes(gt, gt, SmallOptions());
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->floater_share, 0.0);
+  EXPECT_EQ(r->floater_area_m2, 0.0);
+}
+
+TEST(MeshEvalFloaterTest, ThresholdDecides) {
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);
+  const Mesh pred = Merged(gt, PatchZ(0.1f));
+  // 10 cm above: not a floater at 20 cm.
+  const auto near = EvaluateMeshes(pred, gt, SmallOptions());
+  ASSERT_TRUE(near.ok()) << near.status();
+  EXPECT_EQ(near->floater_share, 0.0);
+  EXPECT_EQ(near->floater_area_m2, 0.0);
+  // At 5 cm it is.
+  EvalOptions options = SmallOptions();
+  options.floater_m = 0.05;
+  const auto strict = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(strict.ok()) << strict.status();
+  EXPECT_NEAR(strict->floater_share, 1.0 / 17.0, 0.02 / 17.0);
+  EXPECT_NEAR(strict->floater_area_m2, 1.0, 0.02);
+}
+
+TEST(MeshEvalFloaterTest, CroppedAsTheOtherMetrics) {
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);
+  const Mesh pred = Merged(gt, PatchZ(0.5f));
+  // The default crop pads the flat GT's box by 20 cm: the patch 50 cm up is outside it.
+  const auto cropped = EvaluateMeshes(pred, gt, SmallOptions());
+  ASSERT_TRUE(cropped.ok()) << cropped.status();
+  EXPECT_NEAR(cropped->pred_area_m2, 16.0, 1e-4);
+  EXPECT_EQ(cropped->floater_share, 0.0);
+
+  // Boxes over [0, 2]^2 and [2, 4]^2: 8 m^2 of the ground and the whole patch. The samples are
+  // drawn over the union's bounds (17 m^2) and those outside the boxes left out.
+  auto u = BoxUnion::Create(1, 1, -1, 1, {{1, 1, 0}, {3, 3, 0}});
+  ASSERT_TRUE(u.ok()) << u.status();
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;
+  options.box_union = std::make_shared<const BoxUnion>(*std::move(u));
+  const auto r = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->pred_area_m2, 17.0, 1e-4);
+  EXPECT_NEAR(r->pred_samples, 200'000 * 9.0 / 17.0, 2'000);
+  EXPECT_NEAR(r->floater_share, 1.0 / 9.0, 0.02 / 9.0);
+  EXPECT_NEAR(r->floater_area_m2, 1.0, 0.02);
+  // A union beside the patch leaves it out.
+  auto beside = BoxUnion::Create(1, 1, -1, 1, {{3, 3, 0}});
+  ASSERT_TRUE(beside.ok()) << beside.status();
+  options.box_union = std::make_shared<const BoxUnion>(*std::move(beside));
+  const auto none = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_EQ(none->floater_share, 0.0);
+}
+
+TEST(MeshEvalFloaterTest, PointCloudPredictionCountsItsPoints) {
+  // 4 points per 1 cm voxel on both parts: 160000 on the ground, 40000 on the patch.
+  Mesh pred = GridCloudZ(0.03f, 0, 2, 0, 2, 0.005f);
+  AppendMesh(GridCloudZ(0.5f, 0.5f, 1.5f, 0.5f, 1.5f, 0.005f), &pred);
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;
+  const auto r = EvaluateMeshes(pred, PlaneZ(0, 0, 2, 0, 2), options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->pred_kind, InputKind::kPoints);
+  EXPECT_EQ(r->pred_samples, 200'000);
+  EXPECT_DOUBLE_EQ(r->floater_share, 0.2);
+  EXPECT_EQ(r->floater_area_m2, 0.0);  // a point cloud has no area
+}
+
+TEST(MeshEvalFloaterTest, BadThresholdIsNamed) {
+  const Mesh gt = PlaneZ(0, 0, 2, 0, 2);
+  for (double bad : {-0.2, 0.0, static_cast<double>(NAN), static_cast<double>(INFINITY)}) {
+    EvalOptions options = SmallOptions();
+    options.floater_m = bad;
+    const absl::Status s = ValidateEvalOptions(options);
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(s.message().find("EvalOptions.floater_m must be > 0"), std::string::npos) << s;
+    const auto r = EvaluateMeshes(gt, gt, options);
+    EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(r.status().message().find("floater_m"), std::string::npos) << r.status();
+  }
+  EvalOptions options = SmallOptions();
+  options.floater_m = 0.01;
+  EXPECT_TRUE(ValidateEvalOptions(options).ok());
+}
+
 // --- The rim_eval command line -------------------------------------------------------------------
 
 // A minimal JSON syntax check (RFC 8259 grammar, no semantics), enough to catch broken output.
@@ -737,6 +864,47 @@ TEST_F(RimEvalCliTest, PrintsJson) {
     EXPECT_NE(r.out.find(key), std::string::npos) << key << " missing from:\n" << r.out;
   }
   EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+}
+
+// The number after `key` in `out`, NaN when `key` is missing.
+double NumberAfter(const std::string& out, const std::string& key) {
+  const size_t at = out.find(key);
+  return at == std::string::npos ? NAN : std::strtod(out.c_str() + at + key.size(), nullptr);
+}
+
+TEST_F(RimEvalCliTest, ReportsFloaters) {
+  // The 3 cm shifted plane has none.
+  RunResult r = RunRimEval(pred_ + " " + gt_ + " --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("Floaters (> 20 cm): 0.00 % of predicted area (0.00 m^2)\n"),
+            std::string::npos)
+      << r.out;
+  r = RunRimEval(pred_ + " " + gt_ + " --json --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("\"floater_cm\": 20.000}"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"floater_share\": 0.000000, \"floater_area_m2\": 0.0000\n}"),
+            std::string::npos)
+      << r.out;
+
+  // A 1 m^2 patch 50 cm above the 4 m^2 ground: a fifth of the area (uncropped, as the GT is
+  // flat).
+  const std::string floating = ::testing::TempDir() + "/rim_mesh_eval_floating.ply";
+  ASSERT_TRUE(WriteMeshPly(floating, Merged(PlaneZ(0.03f, 0, 2, 0, 2), PatchZ(0.5f))).ok());
+  r = RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000 --threads 1");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
+  // The keys before them are unchanged, in their order; the new ones come last.
+  const size_t seconds = r.out.find("\"seconds\": ");
+  ASSERT_NE(seconds, std::string::npos) << r.out;
+  EXPECT_GT(r.out.find("\"floater_share\": "), seconds) << r.out;
+  EXPECT_NEAR(NumberAfter(r.out, "\"floater_share\": "), 0.2, 0.004) << r.out;
+  EXPECT_NEAR(NumberAfter(r.out, "\"floater_area_m2\": "), 1.0, 0.02) << r.out;
+  r = RunRimEval(floating + " " + gt_ + " --no-crop --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  const std::string line = "Floaters (> 20 cm): ";
+  EXPECT_NEAR(NumberAfter(r.out, line), 20.0, 0.4) << r.out;
+  EXPECT_NE(r.out.find(" % of predicted area ("), std::string::npos) << r.out;
+  EXPECT_NEAR(NumberAfter(r.out, " % of predicted area ("), 1.0, 0.02) << r.out;
 }
 
 // A PLY with a vertex element only: no face element at all.

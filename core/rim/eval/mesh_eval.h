@@ -7,6 +7,8 @@
 //  5. drop prediction→GT distances >= drop_m, cap GT→prediction distances at cap_m,
 //  6. precision / recall / F-score at fscore_m.
 // The "strict" metrics repeat 5–6 without the drop and the cap, so that floaters count.
+// The floater share is the share of the (cropped) prediction's area farther than floater_m from
+// the GT: each voxel-averaged prediction point stands for the samples it averaged.
 //
 // Either input may be a point cloud instead of a mesh: a Mesh with vertices and no faces (e.g.
 // rim_sim's gt_observed.ply, the surface its sensor actually saw). Its vertices are then the
@@ -37,6 +39,7 @@ struct EvalOptions {
   double drop_m = 0.2;     // standard metrics ignore prediction points at least this far from GT
   double cap_m = 2.0;      // standard metrics count GT points farther than this at cap_m
   double fscore_m = 0.1;   // inlier threshold of precision, recall and F-score
+  double floater_m = 0.2;  // prediction surface farther than this from GT is a floater
   uint64_t seed = 1;       // the prediction is sampled with `seed`, the GT with another stream
   int threads = 2;         // results do not depend on the thread count
   bool crop_to_gt = true;  // step 1
@@ -81,6 +84,11 @@ struct EvalResult {
   int64_t gt_points = 0;
   int64_t pred_dropped = 0;  // prediction points left out of the standard metrics
   int64_t gt_capped = 0;     // GT points whose distance the standard metrics cap
+  // The share of the prediction's area (after all cropping) farther than floater_m from the GT,
+  // in [0, 1], and that area. A point cloud has no area: the share is then of its points (as
+  // given, after cropping) and the area 0.
+  double floater_share = 0;
+  double floater_area_m2 = 0;
 };
 
 // Checks every field, naming the bad one.
