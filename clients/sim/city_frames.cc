@@ -24,7 +24,7 @@ struct CityFrames::State {
   City city;
   std::vector<Eigen::Isometry3d> poses;
   LidarModel lidar;
-  std::unique_ptr<RayCaster> static_caster;  // when there are no walkers to move each frame
+  std::unique_ptr<RayCaster> static_caster;  // when nothing moves from frame to frame
   int threads = 1;
 };
 
@@ -34,11 +34,15 @@ CityFrames::CityFrames(const CityFrameOptions& options) : state_(std::make_uniqu
   CityOptions city_options;
   city_options.seed = options.seed;
   city_options.walkers = options.walkers;
+  city_options.crossers = options.crossers;
+  city_options.movers = options.movers;
+  city_options.frames = options.frames;
+  city_options.step = options.step;
   city_options.buildings = options.buildings;
   s.city = GenerateCity(city_options);
   s.poses = CityTrajectory(s.city, options.frames, options.step, kSensorHeight);
   s.lidar.columns = options.columns;
-  if (s.city.walkers.empty())
+  if (s.city.walkers.empty() && s.city.crossers.empty() && s.city.movers.empty())
     s.static_caster = std::make_unique<RayCaster>(s.city.scene, kGridCell);
   s.threads = options.threads > 0
                   ? options.threads
@@ -57,8 +61,8 @@ PosedScan CityFrames::Frame(size_t k) const {
     points = SimulateLidarScan(*s.static_caster, s.poses[k], s.lidar, noise, s.threads);
   } else {
     Scene frame_scene = s.city.scene;
-    for (Primitive& w : WalkersAt(s.city, double(k) / kFrameRateHz))
-      frame_scene.primitives.push_back(w);
+    for (Primitive& m : MovingAt(s.city, double(k) / kFrameRateHz))
+      frame_scene.primitives.push_back(m);
     const RayCaster caster(frame_scene, kGridCell);
     points = SimulateLidarScan(caster, s.poses[k], s.lidar, noise, s.threads);
   }

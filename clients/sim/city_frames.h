@@ -19,6 +19,8 @@ struct CityFrameOptions {
   int columns = 1800;         // LiDAR azimuth steps per revolution (64 beams)
   double noise = 0.0;         // Gaussian range noise, standard deviation in metres
   int walkers = 0;            // pedestrians on the sidewalks
+  int crossers = 0;           // pedestrians crossing the drive's street
+  int movers = 0;             // cars driving the opposite lane
   int threads = 0;            // ray-casting threads; 0: all hardware threads
   BuildingOptions buildings;  // set-backs and heights (the defaults are rim_sim's)
 };

@@ -183,6 +183,68 @@ bool InObservedBox(const Vec3& p, const Vec3& sensor, const ObservedBox& box) {
          p.z() >= sensor.z() + box.z_min && p.z() < sensor.z() + box.z_max;
 }
 
+// scene.json's crossers and movers (each of them listed), or nothing when there are none, so that
+// a run without them writes what it always did.
+std::string MovingJson(const City& city) {
+  if (city.crossers.empty() && city.movers.empty()) return "";
+  std::string crossers;
+  for (const Crosser& c : city.crossers) {
+    absl::StrAppend(&crossers, crossers.empty() ? "\n" : ",\n",
+                    absl::StrFormat(R"(      {"x_m": %.4f, "y_m": %.4f, "street_dir": [%g, %g], )"
+                                    R"("speed_mps": %.4f, "radius_m": %.4f, "height_m": %.4f, )"
+                                    R"("phase": %.4f})",
+                                    c.center.x(), c.center.y(), c.street.x(), c.street.y(), c.speed,
+                                    c.radius, c.height, c.phase));
+  }
+  std::string movers;
+  for (const Mover& m : city.movers) {
+    absl::StrAppend(&movers, movers.empty() ? "\n" : ",\n",
+                    absl::StrFormat(R"(      {"speed_mps": %.4f, "s0_m": %.4f, )"
+                                    R"("size_m": [%.6g, %.6g, %.6g]})",
+                                    m.speed, m.s0, m.size.x(), m.size.y(), m.size.z()));
+  }
+  // One object of scene.json: its count, the lines that describe it, and its list.
+  auto block = [](const char* name, size_t count, const std::string& about,
+                  const std::string& list) {
+    return absl::StrFormat("  \"%s\": {\n    \"count\": %d,\n%s    \"list\": [%s%s]\n  },\n", name,
+                           count, about, list, list.empty() ? "" : "\n    ");
+  };
+  const std::string crosser_about = absl::StrFormat(
+      "    \"in\": \"the scans only, not gt.ply or gt_observed.ply\",\n"
+      "    \"motion\": \"back and forth (turning at each end) across the street, on the line "
+      "through (x_m, y_m) perpendicular to street_dir, lateral -%g..+%g m from the centre line, "
+      "positive towards the drive's lane (right of street_dir); phase: the fraction of the cycle "
+      "at t = 0, 0 at -%g m walking to +%g m\",\n"
+      "    \"shape\": \"upright cylinder standing on the ground\",\n",
+      kCrossHalfSpan, kCrossHalfSpan, kCrossHalfSpan, kCrossHalfSpan);
+  const double loop_length = city.movers.empty() ? 0.0 : city.movers[0].path.length();
+  const std::string mover_about = absl::StrFormat(
+      "    \"in\": \"the scans only, not gt.ply or gt_observed.ply\",\n"
+      "    \"motion\": \"clockwise, against the drive: the centre is at arc length s0_m - "
+      "speed_mps * t of the counter-clockwise loop %g m inside the street centre lines (length "
+      "%.4f m; arc length 0 where its bottom straight starts, heading +x)\",\n"
+      "    \"shape\": \"box (length, width, height) standing on the ground, length along the "
+      "heading\",\n",
+      kMoverOffset, loop_length);
+  return block("crossers", city.crossers.size(), crosser_about, crossers) +
+         block("movers", city.movers.size(), mover_about, movers);
+}
+
+// README.txt's paragraph on the crossers and movers, or nothing when there are none.
+std::string MovingText(const City& city) {
+  if (city.crossers.empty() && city.movers.empty()) return "";
+  return absl::StrFormat(
+      R"(Crossers: %d pedestrians walking back and forth across the drive's street, from sidewalk to
+sidewalk (%g m either side of the centre line), each on its own crossing line along the drive.
+Movers: %d cars (%g x %g x %g m boxes) driving the opposite lane against the drive, %g m from
+the street centre line, each meeting the sensor at its own place along the drive. Both are in the
+scans only: not in gt.ply, and their returns are left out of gt_observed.ply. scene.json lists
+them.
+)",
+      city.crossers.size(), kCrossHalfSpan, city.movers.size(), kMoverLength, kMoverWidth,
+      kMoverHeight, kMoverOffset);
+}
+
 absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   SimSummary summary;
   const double step = o.step > 0 ? o.step : 1.0;
@@ -194,6 +256,10 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   CityOptions city_options;
   city_options.seed = o.seed;
   city_options.walkers = o.walkers;
+  city_options.crossers = o.crossers;
+  city_options.movers = o.movers;
+  city_options.frames = o.frames;
+  city_options.step = step;
   city_options.buildings = o.buildings;
   RIM_RETURN_IF_ERROR(ValidateCityOptions(city_options));
   const City city = GenerateCity(city_options);
@@ -219,8 +285,10 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   RIM_RETURN_IF_ERROR(rim::MakeDirs(velodyne));
 
   std::unique_ptr<RayCaster> static_caster;
-  if (city.walkers.empty()) static_caster = std::make_unique<RayCaster>(city.scene, kCityGridCell);
-  // The frame scenes list the static primitives first, then the walkers.
+  if (city.walkers.empty() && city.crossers.empty() && city.movers.empty()) {
+    static_caster = std::make_unique<RayCaster>(city.scene, kCityGridCell);
+  }
+  // The frame scenes list the static primitives first, then the moving ones.
   const int num_static = static_cast<int>(city.scene.primitives.size());
   VoxelAverager observed(kObservedVoxel);
   std::vector<SensorTruth> truth;
@@ -231,13 +299,14 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
       points = SimulateLidarScan(*static_caster, poses[k], lidar, noise, threads, &truth);
     } else {
       Scene frame_scene = city.scene;
-      for (Primitive& w : WalkersAt(city, k / kFrameRateHz)) frame_scene.primitives.push_back(w);
+      for (Primitive& m : MovingAt(city, k / kFrameRateHz)) frame_scene.primitives.push_back(m);
       const RayCaster caster(frame_scene, kCityGridCell);
       points = SimulateLidarScan(caster, poses[k], lidar, noise, threads, &truth);
     }
     summary.points += points.size();
     RIM_RETURN_IF_ERROR(WriteKittiScan(Join(velodyne, absl::StrFormat("%06d.bin", k)), points));
-    // The observed surface: noise-free hits on static geometry (inside the frame's mapping box).
+    // The observed surface: noise-free hits on static geometry (inside the frame's mapping box);
+    // hits on moving things (primitives from num_static on) are left out.
     const Vec3 sensor = poses[k].translation();
     for (const SensorTruth& t : truth) {
       if (t.primitive >= num_static || !InObservedBox(t.world, sensor, o.observed_box)) continue;
@@ -281,7 +350,7 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   "frame_rate_hz": %.6g,
   "noise_stddev_m": %.6g,
   "walkers": %d,
-  "buildings": {
+%s  "buildings": {
     "setback_min_m": %.6g,
     "setback_max_m": %.6g,
     "height_min_m": %.6g,
@@ -319,12 +388,13 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   }
 }
 )",
-      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, o.buildings.setback_min,
-      o.buildings.setback_max, o.buildings.height_min, o.buildings.height_max, kFrontage,
-      lidar.beams, lidar.columns, lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range,
-      lidar.max_range, kSensorHeight, gt_options.region_min.x(), gt_options.region_min.y(),
-      gt_options.region_max.x(), gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(),
-      gt.faces.size(), observed_points.size(), kObservedVoxel, box_json);
+      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, MovingJson(city),
+      o.buildings.setback_min, o.buildings.setback_max, o.buildings.height_min,
+      o.buildings.height_max, kFrontage, lidar.beams, lidar.columns, lidar.elev_max_deg,
+      lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
+      gt_options.region_min.x(), gt_options.region_min.y(), gt_options.region_max.x(),
+      gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(), gt.faces.size(),
+      observed_points.size(), kObservedVoxel, box_json);
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
 
   const std::string readme = absl::StrFormat(
@@ -356,11 +426,11 @@ Drive: %d frames, %.6g m apart, counter-clockwise round a 2 x 1 ring of 80 m blo
 right-hand lane. Buildings: %.6g..%.6g m high, facades set back %.6g..%.6g m beyond %.6g m from
 the street centre lines. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
 only, not in gt.ply).
-)",
+%s)",
       o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, box_text, lidar.beams,
       lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
       kSensorHeight, o.noise, o.frames, step, o.buildings.height_min, o.buildings.height_max,
-      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.walkers);
+      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.walkers, MovingText(city));
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
   summary.frames = o.frames;
   return summary;

@@ -1,8 +1,9 @@
 // rim_sim: writes a synthetic dataset with ground truth.
 //
-//   rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
-//           [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX|none]
-//           [--building-setback MIN,MAX] [--building-height MIN,MAX] [--threads T]
+//   rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--crossers K]
+//           [--movers K] [--seed S] [--step M] [--columns C] [--gt-margin M]
+//           [--observed-box HX,HY,ZMIN,ZMAX|none] [--building-setback MIN,MAX]
+//           [--building-height MIN,MAX] [--threads T]
 //   rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 //
 // city: a procedural city scanned by a 64-beam spinning LiDAR driving round a loop of streets,
@@ -43,6 +44,8 @@ struct SimOptions {
   int frames = 100;
   double noise = 0.0;  // Gaussian range (city) or depth (room) noise, standard deviation in m
   int walkers = 0;     // city only
+  int crossers = 0;    // city only: pedestrians crossing the drive's street
+  int movers = 0;      // city only: cars driving the opposite lane
   uint64_t seed = 1;
   double step = 0.0;         // metres per frame; 0 picks the scene's default (city 1, room 0.1)
   int columns = 1800;        // city only: LiDAR azimuth steps per revolution

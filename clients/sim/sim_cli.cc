@@ -60,8 +60,9 @@ absl::Status ParseRange(absl::string_view flag, absl::string_view value, double 
 
 std::string SimUsage() {
   return R"(usage: rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
-                [--step M] [--columns C] [--gt-margin M] [--observed-box HX,HY,ZMIN,ZMAX|none]
-                [--building-setback MIN,MAX] [--building-height MIN,MAX] [--threads T]
+                [--crossers K] [--movers K] [--step M] [--columns C] [--gt-margin M]
+                [--observed-box HX,HY,ZMIN,ZMAX|none] [--building-setback MIN,MAX]
+                [--building-height MIN,MAX] [--threads T]
        rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 
 Writes a synthetic dataset with its ground-truth mesh (gt.ply) and the observed surface
@@ -77,6 +78,12 @@ cloud without faces):
   --frames N         number of frames, >= 1 (default 100)
   --noise M          Gaussian range/depth noise, standard deviation in metres (default 0)
   --walkers K        city: pedestrians walking along the sidewalks, in the scans only (default 0)
+  --crossers K       city: pedestrians walking back and forth across the drive's street, their
+                     crossing lines spread along the part of the loop the run drives; in the scans
+                     only (default 0, at most 1000)
+  --movers K         city: cars driving the opposite lane against the drive, each meeting the
+                     sensor at its own place along the run; in the scans only (default 0, at most
+                     1000)
   --seed S           scene seed, a non-negative integer (default 1)
   --step M           metres travelled per frame (default 1 for city, 0.1 for room)
   --columns C        city: LiDAR columns per revolution (default 1800)
@@ -125,6 +132,8 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
                                                    "--frames",
                                                    "--noise",
                                                    "--walkers",
+                                                   "--crossers",
+                                                   "--movers",
                                                    "--seed",
                                                    "--step",
                                                    "--columns",
@@ -163,6 +172,10 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
           ParseDouble(arg, value, 0.0, 10.0, true, &o.noise, "a standard deviation in [0, 10] m"));
     } else if (arg == "--walkers") {
       RIM_RETURN_IF_ERROR(ParseInt(arg, value, 0, 10000, &o.walkers, "an integer in [0, 10000]"));
+    } else if (arg == "--crossers") {
+      RIM_RETURN_IF_ERROR(ParseInt(arg, value, 0, 1000, &o.crossers, "an integer in [0, 1000]"));
+    } else if (arg == "--movers") {
+      RIM_RETURN_IF_ERROR(ParseInt(arg, value, 0, 1000, &o.movers, "an integer in [0, 1000]"));
     } else if (arg == "--seed") {
       if (!absl::SimpleAtoi(value, &o.seed) || value.empty() || value[0] == '-') {
         return BadValue(arg, value, "a non-negative integer");
@@ -203,8 +216,8 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
   }
   if (!have_out) return absl::InvalidArgumentError("--out DIR is required");
   if (o.scene == SceneKind::kRoom) {
-    for (const char* city_only : {"--walkers", "--columns", "--gt-margin", "--observed-box",
-                                  "--building-setback", "--building-height"}) {
+    for (const char* city_only : {"--walkers", "--crossers", "--movers", "--columns", "--gt-margin",
+                                  "--observed-box", "--building-setback", "--building-height"}) {
       if (given.count(city_only)) {
         return absl::InvalidArgumentError(absl::StrCat(city_only, " only applies to --scene city"));
       }

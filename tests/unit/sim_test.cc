@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <limits>
 #include <map>
@@ -26,6 +27,7 @@
 #include "absl/strings/str_format.h"
 #include "rim/io/mesh_io.h"
 #include "sim/city.h"
+#include "sim/city_frames.h"
 #include "sim/geometry.h"
 #include "sim/rng.h"
 #include "sim/room.h"
@@ -1024,6 +1026,523 @@ TEST(SimPngTest, SixteenBitRoundTrip) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Moving things: crossers and movers
+
+CityOptions MovingCity(uint64_t seed, int crossers, int movers, int frames) {
+  CityOptions co;
+  co.seed = seed;
+  co.crossers = crossers;
+  co.movers = movers;
+  co.frames = frames;
+  co.step = 1.0;
+  return co;
+}
+
+// Signed distance from p to the street centre lines round the drive loop (a rounded rectangle
+// round the 2 x 1 blocks), positive outside the loop, where the drive's lane is.
+double LoopOffset(const Vec2& p) {
+  const Vec2 center(kBlockPitch, 0.5 * kBlockPitch), half(kBlockPitch, 0.5 * kBlockPitch);
+  const Vec2 q = (p - center).cwiseAbs() - (half - Vec2::Constant(kLoopCornerRadius));
+  return q.cwiseMax(0.0).norm() + std::min(std::max(q.x(), q.y()), 0.0) - kLoopCornerRadius;
+}
+
+// True if the convex polygons (counter-clockwise) are at least `gap` apart along one of their edge
+// normals (separating axes): then they are at least that far apart.
+bool ConvexApart(const std::vector<Vec2>& a, const std::vector<Vec2>& b, double gap) {
+  for (const auto* poly : {&a, &b}) {
+    for (size_t i = 0; i < poly->size(); ++i) {
+      const Vec2 e = (*poly)[(i + 1) % poly->size()] - (*poly)[i];
+      if (e.norm() < 1e-12) continue;
+      const Vec2 n = Vec2(e.y(), -e.x()).normalized();  // outward for counter-clockwise
+      double amax = -1e300, bmin = 1e300;
+      for (const Vec2& p : *poly) amax = std::max(amax, n.dot(p));
+      for (const Vec2& p : (poly == &a ? b : a)) bmin = std::min(bmin, n.dot(p));
+      if (bmin - amax >= gap) return true;
+    }
+  }
+  return false;
+}
+
+// Counts the moving solids that come within `gap` of a static solid: their horizontal sections
+// are compared every 5 cm of height where both are. *pairs receives the number of (moving,
+// static) pairs whose bounds come within 1 m of each other, the ones compared.
+int StaticContacts(const City& city, const GridIndex& index, const std::vector<Primitive>& moving,
+                   double gap, int* pairs) {
+  TessellationOptions fine;
+  fine.tolerance = 0.003;
+  int contacts = 0;
+  for (const Primitive& m : moving) {
+    const Aabb mb = Bounds(m.shape);
+    bool contact = false;
+    const Vec2 lo = mb.min.head<2>() - Vec2::Constant(1.0),
+               hi = mb.max.head<2>() + Vec2::Constant(1.0);
+    index.ForEachInRect(lo, hi, [&](int i) {
+      const Shape& s = city.scene.primitives[i].shape;
+      const Aabb sb = Bounds(s);
+      if (sb.min.z() > mb.max.z() || sb.max.z() < mb.min.z()) return;
+      if ((sb.min.head<2>().array() > hi.array()).any() ||
+          (sb.max.head<2>().array() < lo.array()).any()) {
+        return;
+      }
+      ++*pairs;
+      for (double z = std::max(mb.min.z(), sb.min.z()) + 1e-3; z < std::min(mb.max.z(), sb.max.z());
+           z += 0.05) {
+        const std::vector<Vec2> a = Footprint(m.shape, z, fine), b = Footprint(s, z, fine);
+        if (!a.empty() && !b.empty() && !ConvexApart(a, b, gap)) contact = true;
+      }
+    });
+    contacts += contact;
+  }
+  return contacts;
+}
+
+TEST(SimMovingTest, ConvexApartSeesOverlapsAndGaps) {
+  // The check the contact counts rely on: two unit squares 0.1 m apart, then overlapping.
+  auto square = [](double x) {
+    return std::vector<Vec2>{Vec2(x, 0), Vec2(x + 1, 0), Vec2(x + 1, 1), Vec2(x, 1)};
+  };
+  EXPECT_TRUE(ConvexApart(square(0), square(1.1), 0.05));
+  EXPECT_FALSE(ConvexApart(square(0), square(1.1), 0.2));
+  EXPECT_FALSE(ConvexApart(square(0), square(0.9), 0.0));
+  EXPECT_FALSE(ConvexApart(square(1.1), square(0), 0.2));
+}
+
+TEST(SimMovingTest, NearestFindsTheClosestPointOfALoop) {
+  const LoopPath loop(Vec2(80, 40), Vec2(78.7, 38.7), 8.7);
+  Rng rng(5);
+  for (int i = 0; i < 300; ++i) {
+    const Vec2 p(rng.Uniform(-20, 180), rng.Uniform(-20, 100));
+    const double s = loop.Nearest(p);
+    ASSERT_GE(s, 0.0);
+    ASSERT_LT(s, loop.length());
+    Vec2 q;
+    double heading;
+    loop.Eval(s, &q, &heading);
+    double best = 1e300;
+    for (double u = 0; u < loop.length(); u += 0.05) {
+      Vec2 r;
+      loop.Eval(u, &r, &heading);
+      best = std::min(best, (p - r).norm());
+    }
+    EXPECT_LE((p - q).norm(), best + 1e-9) << p.transpose();
+    // A point on the loop is its own nearest point.
+    const double on = rng.Uniform(0, loop.length());
+    loop.Eval(on, &q, &heading);
+    EXPECT_NEAR(loop.Nearest(q), on, 1e-6);
+  }
+}
+
+TEST(SimMovingTest, CrossersCrossTheDrivenStreetInFrontOfTheSensor) {
+  for (uint64_t seed : {1, 7, 11}) {
+    const City city = GenerateCity(MovingCity(seed, 6, 0, 60));
+    ASSERT_EQ(city.crossers.size(), 6u);
+    const auto poses = CityTrajectory(city, 60, 1.0, 1.73);
+    std::vector<double> lines;
+    for (const Crosser& c : city.crossers) {
+      // On the drive's street, across it, somewhere the 60-frame run drives ahead of its start.
+      EXPECT_GE(c.drive_s, city.start_s + kMovingAhead - 1e-9) << "seed " << seed;
+      EXPECT_LE(c.drive_s, city.start_s + 59.0 + 1e-9) << "seed " << seed;
+      Vec2 lane;
+      double heading;
+      city.drive_path.Eval(c.drive_s, &lane, &heading);
+      EXPECT_LT((c.center + kLaneOffset * c.across - lane).norm(), 1e-9);
+      EXPECT_NEAR(c.street.dot(Vec2(std::cos(heading), std::sin(heading))), 1.0, 1e-9);
+      EXPECT_NEAR(c.street.dot(c.across), 0.0, 1e-12);
+      EXPECT_LT(c.street.x() * c.across.y() - c.street.y() * c.across.x(), 0.0)
+          << "across points to the right of the street, to the drive's lane";
+      // Clear of the intersections.
+      const double along = c.street.x() != 0 ? c.center.x() : c.center.y();
+      const double from_intersection =
+          std::abs(along - kBlockPitch * std::round(along / kBlockPitch));
+      EXPECT_GE(from_intersection, 14.0 - 1e-9);
+      EXPECT_GE(c.speed, 1.0);
+      EXPECT_LE(c.speed, 1.6);
+      EXPECT_GE(c.radius, 0.22);
+      EXPECT_LE(c.radius, 0.28);
+      EXPECT_GE(c.height, 1.6);
+      EXPECT_LE(c.height, 1.9);
+      lines.push_back(c.drive_s);
+    }
+    // Spread along the stretch, each crossing line its own, far enough from the next for two
+    // crossers (radius <= 0.28 m) never to meet.
+    std::sort(lines.begin(), lines.end());
+    for (size_t i = 1; i < lines.size(); ++i) EXPECT_GE(lines[i] - lines[i - 1], 0.6 - 1e-9);
+    EXPECT_GT(lines.back() - lines.front(), 20.0) << "seed " << seed;
+
+    // 200 frames at 10 Hz: on the crossing line, within the sidewalks, often on the road.
+    int on_road = 0, samples = 0;
+    for (int k = 0; k < 200; ++k) {
+      const std::vector<Primitive> prims = CrossersAt(city, k / kFrameRateHz);
+      ASSERT_EQ(prims.size(), city.crossers.size());
+      for (size_t i = 0; i < prims.size(); ++i) {
+        const Crosser& c = city.crossers[i];
+        const Cylinder& cyl = std::get<Cylinder>(prims[i].shape);
+        EXPECT_EQ(prims[i].material, Material::kPerson);
+        EXPECT_EQ(cyl.radius, c.radius);
+        EXPECT_NEAR(cyl.z_max, c.height, 1e-12);
+        EXPECT_LT(cyl.z_min, 0.0);
+        const double lateral = (cyl.center - c.center).dot(c.across);
+        EXPECT_NEAR((cyl.center - c.center).dot(c.street), 0.0, 1e-9);
+        EXPECT_NEAR(lateral, CrosserLateral(c, k / kFrameRateHz), 1e-9);
+        EXPECT_LE(std::abs(lateral), 7.8);
+        on_road += std::abs(lateral) < 4.5;
+        ++samples;
+      }
+    }
+    EXPECT_GT(on_road, 0.45 * samples) << "seed " << seed;
+    EXPECT_LT(on_road, 0.85 * samples) << "seed " << seed << ": they reach the sidewalks too";
+    // The 60-frame run sees every one of them on the road ahead of it, and never drives into one.
+    std::vector<bool> seen(city.crossers.size(), false);
+    for (int k = 0; k < 60; ++k) {
+      const Vec2 sensor = poses[k].translation().head<2>();
+      const Vec2 forward = poses[k].linear().col(0).head<2>();
+      const std::vector<Primitive> prims = CrossersAt(city, k / kFrameRateHz);
+      for (size_t i = 0; i < prims.size(); ++i) {
+        const Cylinder& cyl = std::get<Cylinder>(prims[i].shape);
+        const double lateral = (cyl.center - city.crossers[i].center).dot(city.crossers[i].across);
+        const double ahead = (cyl.center - sensor).dot(forward);
+        if (std::abs(lateral) < 4.5 && ahead > 2.0 && ahead < 40.0) seen[i] = true;
+        EXPECT_GT((cyl.center - sensor).norm(), cyl.radius + 1.0)
+            << "seed " << seed << " frame " << k;
+      }
+    }
+    for (size_t i = 0; i < seen.size(); ++i) EXPECT_TRUE(seen[i]) << "seed " << seed << " #" << i;
+  }
+}
+
+// The least distance, along the street, from a crossing line to a parked car whose side reaches
+// the crossing line's span across the street.
+double ParkedCarGap(const City& city, const Crosser& c) {
+  double least = 1e300;
+  for (const Primitive& p : city.scene.primitives) {
+    if (p.material != Material::kCar) continue;
+    double along_min = 1e300, along_max = -1e300, lat_min = 1e300, lat_max = -1e300;
+    for (const Vec2& corner : FootprintCorners(std::get<Box>(p.shape))) {
+      along_min = std::min(along_min, (corner - c.center).dot(c.street));
+      along_max = std::max(along_max, (corner - c.center).dot(c.street));
+      lat_min = std::min(lat_min, (corner - c.center).dot(c.across));
+      lat_max = std::max(lat_max, (corner - c.center).dot(c.across));
+    }
+    if (lat_max < -c.half_span - 1.0 || lat_min > c.half_span + 1.0) continue;
+    least = std::min(least, along_min > 0 ? along_min : along_max < 0 ? -along_max : 0.0);
+  }
+  return least;
+}
+
+TEST(SimMovingTest, CrossingLinesKeepClearOfParkedCars) {
+  int lines = 0, wide = 0, near_cars = 0;
+  for (uint64_t seed : {1, 2, 3, 4}) {
+    // Short runs (lines packed into a short stretch) and a long one (lines all round the loop).
+    for (const auto& [crossers, frames] :
+         {std::pair{6, 60}, std::pair{10, 60}, std::pair{40, 500}}) {
+      const City city = GenerateCity(MovingCity(seed, crossers, 0, frames));
+      ASSERT_EQ(city.crossers.size(), static_cast<size_t>(crossers));
+      for (const Crosser& c : city.crossers) {
+        const double gap = ParkedCarGap(city, c);
+        EXPECT_GE(gap, kCrossCarGapMin - 1e-9)
+            << "seed " << seed << " crossing at " << c.center.transpose();
+        ++lines;
+        wide += gap >= kCrossCarGap - 1e-9;
+        near_cars += gap < 6.0;
+      }
+    }
+  }
+  // Most keep the wide gap; some pass close to parked cars (or the test proves nothing).
+  EXPECT_GT(wide, 0.7 * lines);
+  EXPECT_GT(near_cars, 20);
+}
+
+TEST(SimMovingTest, CrossersAndMoversNeverMeetAStaticSolid) {
+  for (uint64_t seed : {1, 2, 3}) {
+    const City city = GenerateCity(MovingCity(seed, 12, 6, 200));
+    const GridIndex index(city.scene.primitives, 4.0);
+    int pairs = 0, crosser_contacts = 0, mover_contacts = 0;
+    for (int k = 0; k < 200; ++k) {
+      const double t = k / kFrameRateHz;
+      crosser_contacts += StaticContacts(city, index, CrossersAt(city, t), 0.05, &pairs);
+      mover_contacts += StaticContacts(city, index, MoversAt(city, t), 0.05, &pairs);
+      // And no point of them lies inside a static solid: their centres, nor the sensor's lane.
+      for (const Primitive& m : MovingAt(city, t)) {
+        const Aabb b = Bounds(m.shape);
+        const Vec3 mid(0.5 * (b.min.x() + b.max.x()), 0.5 * (b.min.y() + b.max.y()), 0.5);
+        for (const Primitive& s : city.scene.primitives) {
+          ASSERT_FALSE(Contains(s.shape, mid, 0.0)) << "seed " << seed << " t " << t;
+        }
+      }
+    }
+    EXPECT_EQ(crosser_contacts, 0) << "seed " << seed;
+    EXPECT_EQ(mover_contacts, 0) << "seed " << seed;
+    EXPECT_GT(pairs, 300) << "seed " << seed << ": nothing static nearby, the test proves nothing";
+  }
+  // The check itself finds a contact: a crosser moved onto a parked car.
+  const City city = GenerateCity(MovingCity(1, 1, 0, 60));
+  const GridIndex index(city.scene.primitives, 4.0);
+  for (const Primitive& p : city.scene.primitives) {
+    if (p.material != Material::kCar) continue;
+    const Box& car = std::get<Box>(p.shape);
+    const std::vector<Primitive> fake = {
+        {Cylinder{car.center.head<2>() + BoxToWorld(car, car.half.x() + 0.2, 0), 0.25, -0.03, 1.8},
+         Material::kPerson}};
+    int pairs = 0;
+    EXPECT_EQ(StaticContacts(city, index, fake, 0.05, &pairs), 1);
+    break;
+  }
+}
+
+TEST(SimMovingTest, MoversDriveTheOppositeLaneAndMeetTheSensor) {
+  for (uint64_t seed : {1, 5, 9}) {
+    const City city = GenerateCity(MovingCity(seed, 0, 5, 60));
+    ASSERT_EQ(city.movers.size(), 5u);
+    for (const Mover& m : city.movers) {
+      EXPECT_GE(m.speed, 7.0);
+      EXPECT_LE(m.speed, 12.0);
+      EXPECT_EQ(m.size, Vec3(kMoverLength, kMoverWidth, kMoverHeight));
+    }
+    // Over 200 frames: in the other lane, clear of the centre line and of the parked cars'
+    // lane, clockwise round the loop at their speed, yawed along their heading.
+    for (int k = 0; k < 200; ++k) {
+      const double t = k / kFrameRateHz;
+      const std::vector<Primitive> now = MoversAt(city, t), next = MoversAt(city, t + 0.01);
+      ASSERT_EQ(now.size(), city.movers.size());
+      for (size_t i = 0; i < now.size(); ++i) {
+        EXPECT_EQ(now[i].material, Material::kCar);
+        const Box& box = std::get<Box>(now[i].shape);
+        const Vec2 c = box.center.head<2>();
+        EXPECT_NEAR(LoopOffset(c), -kMoverOffset, 1e-6);
+        EXPECT_NEAR(box.center.z() + box.half.z(), kMoverHeight, 1e-9);
+        for (const Vec2& corner : FootprintCorners(box)) {
+          EXPECT_LT(LoopOffset(corner), -0.1) << "seed " << seed << " t " << t;
+          EXPECT_GT(LoopOffset(corner), -(3.45 - 1.04) + 0.1) << "seed " << seed << " t " << t;
+        }
+        const Vec2 v = (std::get<Box>(next[i].shape).center.head<2>() - c) / 0.01;
+        EXPECT_NEAR(v.norm(), city.movers[i].speed, 0.01 * city.movers[i].speed);
+        EXPECT_GT(v.normalized().dot(Vec2(box.cos_yaw, box.sin_yaw)), 0.99);
+        const Vec2 r = c - Vec2(kBlockPitch, 0.5 * kBlockPitch);
+        EXPECT_LT(r.x() * v.y() - r.y() * v.x(), 0.0) << "clockwise";
+      }
+    }
+    // Each meets the sensor (passes it closely) at its own time within the 60-frame run.
+    const auto poses = CityTrajectory(city, 60, 1.0, 1.73);
+    std::vector<int> meet;
+    for (size_t i = 0; i < city.movers.size(); ++i) {
+      double closest = 1e300;
+      int frame = -1;
+      for (int k = 0; k < 60; ++k) {
+        const Box box = std::get<Box>(MoversAt(city, k / kFrameRateHz)[i].shape);
+        const double d = (box.center.head<2>() - poses[k].translation().head<2>()).norm();
+        if (d < closest) {
+          closest = d;
+          frame = k;
+        }
+      }
+      EXPECT_LT(closest, 6.0) << "seed " << seed << " mover " << i;
+      EXPECT_GT(frame, 0);
+      EXPECT_LT(frame, 59);
+      meet.push_back(frame);
+    }
+    std::sort(meet.begin(), meet.end());
+    for (size_t i = 1; i < meet.size(); ++i) EXPECT_GT(meet[i], meet[i - 1]) << "seed " << seed;
+    EXPECT_GT(meet.back() - meet.front(), 20) << "seed " << seed;
+  }
+}
+
+TEST(SimMovingTest, StaticSceneAndWalkersStayAsTheyWere) {
+  CityOptions plain;
+  plain.seed = 3;
+  plain.walkers = 7;
+  CityOptions busy = plain;
+  busy.crossers = 5;
+  busy.movers = 4;
+  const City a = GenerateCity(plain), b = GenerateCity(busy), c = GenerateCity(busy);
+  EXPECT_TRUE(a.crossers.empty());
+  EXPECT_TRUE(a.movers.empty());
+  ASSERT_EQ(a.scene.primitives.size(), b.scene.primitives.size());
+  for (size_t i = 0; i < a.scene.primitives.size(); ++i) {
+    EXPECT_EQ(Bounds(a.scene.primitives[i].shape).min, Bounds(b.scene.primitives[i].shape).min);
+    EXPECT_EQ(Bounds(a.scene.primitives[i].shape).max, Bounds(b.scene.primitives[i].shape).max);
+  }
+  for (double t : {0.0, 1.3, 7.9}) {
+    const std::vector<Primitive> wa = WalkersAt(a, t), wb = WalkersAt(b, t);
+    ASSERT_EQ(wa.size(), wb.size());
+    for (size_t i = 0; i < wa.size(); ++i) {
+      EXPECT_EQ(std::get<Cylinder>(wa[i].shape).center, std::get<Cylinder>(wb[i].shape).center);
+    }
+    // MovingAt: walkers first, then crossers, then movers.
+    const std::vector<Primitive> all = MovingAt(b, t);
+    ASSERT_EQ(all.size(), 7u + 5u + 4u);
+    EXPECT_EQ(std::get<Cylinder>(all[7].shape).center,
+              std::get<Cylinder>(CrossersAt(b, t)[0].shape).center);
+    EXPECT_EQ(std::get<Box>(all[12].shape).center, std::get<Box>(MoversAt(b, t)[0].shape).center);
+  }
+  // Deterministic; another seed, other crossers and movers.
+  ASSERT_EQ(b.crossers.size(), c.crossers.size());
+  for (size_t i = 0; i < b.crossers.size(); ++i) {
+    EXPECT_EQ(b.crossers[i].center, c.crossers[i].center);
+    EXPECT_EQ(b.crossers[i].phase, c.crossers[i].phase);
+  }
+  for (size_t i = 0; i < b.movers.size(); ++i) EXPECT_EQ(b.movers[i].s0, c.movers[i].s0);
+  CityOptions other = busy;
+  other.seed = 4;
+  const City d = GenerateCity(other);
+  EXPECT_NE(d.crossers[0].speed, b.crossers[0].speed);
+  EXPECT_NE(d.movers[0].s0, b.movers[0].s0);
+}
+
+TEST(SimMovingTest, OptionsAreValidatedNamingTheField) {
+  const std::vector<std::pair<std::function<void(CityOptions*)>, std::string>> cases = {
+      {[](CityOptions* o) { o->crossers = -1; }, "CityOptions.crossers must be >= 0, got -1"},
+      {[](CityOptions* o) { o->movers = -2; }, "CityOptions.movers must be >= 0, got -2"},
+      {[](CityOptions* o) { o->frames = -1; }, "CityOptions.frames must be >= 0"},
+      {[](CityOptions* o) { o->step = 0.0; }, "CityOptions.step must be finite and > 0"},
+      {[](CityOptions* o) { o->step = std::nan(""); }, "CityOptions.step must be"},
+  };
+  for (const auto& [change, message] : cases) {
+    CityOptions o;
+    o.crossers = 2;
+    o.movers = 2;
+    ASSERT_TRUE(ValidateCityOptions(o).ok());
+    change(&o);
+    const absl::Status status = ValidateCityOptions(o);
+    EXPECT_EQ(status.code(), absl::StatusCode::kInvalidArgument) << message;
+    EXPECT_NE(status.message().find(message), std::string::npos) << status;
+  }
+}
+
+TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
+  SimOptions with = SmallCity(TempDir("moving_with"));
+  with.frames = 30;
+  with.crossers = 4;
+  with.movers = 3;
+  with.observed_box = ObservedBox{};
+  SimOptions without = with;
+  without.out_dir = TempDir("moving_without");
+  without.crossers = 0;
+  without.movers = 0;
+  ASSERT_TRUE(RunSim(with).ok());
+  ASSERT_TRUE(RunSim(without).ok());
+  EXPECT_EQ(ReadFile(with.out_dir + "/gt.ply"), ReadFile(without.out_dir + "/gt.ply"))
+      << "gt.ply must not contain crossers or movers";
+
+  CityOptions co = MovingCity(with.seed, with.crossers, with.movers, with.frames);
+  const City city = GenerateCity(co);
+  const auto poses = ReadKittiPoses(with.out_dir + "/poses.txt");
+  ASSERT_EQ(poses.size(), 30u);
+  std::vector<std::vector<Primitive>> crossers, movers;
+  for (int k = 0; k < with.frames; ++k) {
+    crossers.push_back(CrossersAt(city, k / kFrameRateHz));
+    movers.push_back(MoversAt(city, k / kFrameRateHz));
+  }
+  // The scans hit them, inside the frames' mapping boxes too.
+  int crosser_hits = 0, mover_hits = 0, in_boxes = 0;
+  std::vector<bool> crosser_seen(city.crossers.size(), false), mover_seen(city.movers.size());
+  for (int k = 0; k < with.frames; ++k) {
+    for (const LidarPoint& lp : ReadScan(ScanPath(with.out_dir, k))) {
+      const Vec3 w = poses[k] * Vec3(lp.x, lp.y, lp.z);
+      bool hit = false;
+      for (size_t i = 0; i < crossers[k].size(); ++i) {
+        if (w.z() > 0.05 && Contains(crossers[k][i].shape, w, -0.01)) {
+          ++crosser_hits;
+          crosser_seen[i] = hit = true;
+        }
+      }
+      for (size_t i = 0; i < movers[k].size(); ++i) {
+        if (w.z() > 0.05 && Contains(movers[k][i].shape, w, -0.01)) {
+          ++mover_hits;
+          mover_seen[i] = hit = true;
+        }
+      }
+      in_boxes += hit && InBox(w, poses[k].translation(), with.observed_box, 0.0);
+    }
+  }
+  EXPECT_GT(crosser_hits, 200);
+  EXPECT_GT(mover_hits, 1000);
+  EXPECT_GT(in_boxes, 200) << "nothing moving inside the boxes: the test proves nothing";
+  for (bool seen : crosser_seen) EXPECT_TRUE(seen);
+  for (bool seen : mover_seen) EXPECT_TRUE(seen);
+  EXPECT_NE(ReadFile(ScanPath(with.out_dir, 10)), ReadFile(ScanPath(without.out_dir, 10)));
+
+  // gt_observed.ply has no point on them (above the ground they stand on), at any frame's time.
+  const std::vector<Vec3> observed = ReadObserved(with.out_dir);
+  ASSERT_GT(observed.size(), 50000u);
+  int on_moving = 0;
+  for (const Vec3& p : observed) {
+    if (p.z() <= 0.05 || p.z() > 2.0) continue;  // the ground they stand on; above them
+    for (int k = 0; k < with.frames; ++k) {
+      for (const auto* prims : {&crossers[k], &movers[k]}) {
+        for (const Primitive& m : *prims) on_moving += Contains(m.shape, p, -0.01);
+      }
+    }
+  }
+  EXPECT_EQ(on_moving, 0);
+
+  // scene.json and README.txt describe them.
+  const std::string json = ReadFile(with.out_dir + "/scene.json");
+  EXPECT_NE(json.find("\"crossers\": {\n    \"count\": 4,"), std::string::npos) << json;
+  EXPECT_NE(json.find("\"movers\": {\n    \"count\": 3,"), std::string::npos) << json;
+  const Crosser& c0 = city.crossers[0];
+  EXPECT_NE(json.find(absl::StrFormat(R"({"x_m": %.4f, "y_m": %.4f, "street_dir": [%g, %g], )"
+                                      R"("speed_mps": %.4f, "radius_m": %.4f, "height_m": %.4f, )"
+                                      R"("phase": %.4f})",
+                                      c0.center.x(), c0.center.y(), c0.street.x(), c0.street.y(),
+                                      c0.speed, c0.radius, c0.height, c0.phase)),
+            std::string::npos)
+      << json;
+  EXPECT_NE(json.find(absl::StrFormat(R"({"speed_mps": %.4f, "s0_m": %.4f, )"
+                                      R"("size_m": [4.4, 1.8, 1.5]})",
+                                      city.movers[2].speed, city.movers[2].s0)),
+            std::string::npos)
+      << json;
+  const std::string readme = ReadFile(with.out_dir + "/README.txt");
+  EXPECT_NE(readme.find("Crossers: 4 pedestrians"), std::string::npos) << readme;
+  EXPECT_NE(readme.find("Movers: 3 cars"), std::string::npos) << readme;
+  // Without them, neither is mentioned (the files are those of a run without the options).
+  EXPECT_EQ(ReadFile(without.out_dir + "/scene.json").find("crossers"), std::string::npos);
+  EXPECT_EQ(ReadFile(without.out_dir + "/README.txt").find("Crossers"), std::string::npos);
+}
+
+TEST(SimCityTest, CrossersAndMoversAreDeterministicAndStreamedAlike) {
+  SimOptions a = SmallCity(TempDir("moving_det_a"));
+  a.frames = 4;
+  a.crossers = 3;
+  a.movers = 2;
+  a.walkers = 2;
+  a.noise = 0.02;
+  a.threads = 1;
+  SimOptions b = a;
+  b.out_dir = TempDir("moving_det_b");
+  b.threads = 3;
+  ASSERT_TRUE(RunSim(a).ok());
+  ASSERT_TRUE(RunSim(b).ok());
+  const auto fa = ReadTree(a.out_dir), fb = ReadTree(b.out_dir);
+  ASSERT_EQ(fa.size(), fb.size());
+  for (const auto& [name, bytes] : fa) {
+    ASSERT_TRUE(fb.count(name)) << name;
+    EXPECT_TRUE(bytes == fb.at(name)) << name << " differs";
+  }
+  // CityFrames (what rimctl streams) gives the same scans.
+  CityFrameOptions options;
+  options.frames = a.frames;
+  options.columns = a.columns;
+  options.noise = a.noise;
+  options.walkers = a.walkers;
+  options.crossers = a.crossers;
+  options.movers = a.movers;
+  options.threads = 2;
+  const CityFrames frames(options);
+  ASSERT_EQ(frames.size(), 4u);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    const PosedScan scan = frames.Frame(k);
+    const std::vector<LidarPoint> written = ReadScan(ScanPath(a.out_dir, static_cast<int>(k)));
+    ASSERT_EQ(scan.points_S.size(), written.size()) << "frame " << k;
+    for (size_t i = 0; i < written.size(); ++i) {
+      ASSERT_EQ(scan.points_S[i].x(), written[i].x) << "frame " << k << " point " << i;
+      ASSERT_EQ(scan.points_S[i].y(), written[i].y);
+      ASSERT_EQ(scan.points_S[i].z(), written[i].z);
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
 // Command line
 
 struct CliResult {
@@ -1060,6 +1579,15 @@ TEST(SimCliTest, BadArgumentsFailWithAMessage) {
       {{"--out", dir, "--seed", "1", "--seed", "2"}, "--seed given more than once"},
       {{"--scene", "room", "--out", dir, "--walkers", "3"},
        "--walkers only applies to --scene city"},
+      {{"--out", dir, "--crossers", "-1"}, "--crossers must be an integer in [0, 1000], got '-1'"},
+      {{"--out", dir, "--crossers", "1001"}, "--crossers must be"},
+      {{"--out", dir, "--crossers", "two"}, "--crossers must be"},
+      {{"--out", dir, "--movers", "-3"}, "--movers must be an integer in [0, 1000], got '-3'"},
+      {{"--out", dir, "--movers=1.5"}, "--movers must be"},
+      {{"--out", dir, "--movers"}, "--movers needs a value"},
+      {{"--scene", "room", "--out", dir, "--crossers", "3"},
+       "--crossers only applies to --scene city"},
+      {{"--scene", "room", "--out", dir, "--movers", "1"}, "--movers only applies to --scene city"},
       {{"--out", dir, "--observed-box", "10,10,-3"}, "--observed-box must be"},
       {{"--out", dir, "--observed-box", "0,10,-3,3"}, "--observed-box must be"},
       {{"--out", dir, "--observed-box", "10,10,3,-3"}, "--observed-box must be"},
@@ -1098,6 +1626,8 @@ TEST(SimCliTest, HelpAndSuccess) {
   const CliResult help = Cli({"--help"});
   EXPECT_EQ(help.code, 0);
   EXPECT_NE(help.out.find("usage: rim_sim --scene city --out DIR"), std::string::npos);
+  EXPECT_NE(help.out.find("--crossers K "), std::string::npos);
+  EXPECT_NE(help.out.find("--movers K "), std::string::npos);
 
   const std::string dir = TempDir("cli_ok");
   const CliResult ok =
@@ -1131,6 +1661,14 @@ TEST(SimCliTest, HelpAndSuccess) {
             std::string::npos)
       << readme;
   EXPECT_NE(readme.find("(no mapping box: --observed-box none)"), std::string::npos) << readme;
+
+  const CliResult moving = Cli({"--out", dir, "--frames", "2", "--columns", "90", "--gt-margin",
+                                "5", "--crossers", "2", "--movers=1"});
+  EXPECT_EQ(moving.code, 0) << moving.err;
+  const std::string moving_json = ReadFile(dir + "/scene.json");
+  EXPECT_NE(moving_json.find("\"crossers\": {\n    \"count\": 2,"), std::string::npos)
+      << moving_json;
+  EXPECT_NE(moving_json.find("\"movers\": {\n    \"count\": 1,"), std::string::npos) << moving_json;
 
   // An output path under a regular file cannot be created: a runtime error, exit 1.
   const CliResult bad = Cli({"--out", dir + "/gt.ply/sub", "--frames", "1", "--columns", "90"});
