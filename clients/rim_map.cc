@@ -1,20 +1,25 @@
 // rim_map: offline mapping of a dataset with the core mapper, no server.
 //
 //   rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]
-//           [--config FILE] [--tiles] [--probe metric|neural]
+//           [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]
 //
 // --probe scores the distances the final map answers against the dataset's ground truth
 // (rim_sim's gt.ply and gt_observed.ply) at free-space points on its rays (eval/distance_probe.h):
 // `metric` asks QuerySdf, `neural` the network's own values. Writes DIR/probe.json.
+// --query-points reads CSV x,y,z (header optional) and writes DIR/query.csv with the final map's
+// answers, x,y,z,sdf,observed,gt_distance: gt_distance is the exact distance to the dataset's
+// gt.ply (empty when it has none), for checks at chosen places (where people walked, say).
 // Writes DIR/mesh.ply (all tiles, welded), DIR/tiles/*.ply with --tiles, DIR/timing.json
 // (per-stage mean times, ms/frame, frames/s, peak and per-frame memory) and DIR/run.json (config
 // and versions), and prints the per-stage table in the layout of the paper's module-time table.
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -42,11 +47,12 @@ struct Args {
   long first = 0, last = -1;  // [first, last), last < 0: to the end
   bool tiles = false;
   std::string probe;  // "", "metric" or "neural"
+  std::string query_points;
 };
 
 constexpr char kUsage[] =
     "usage: rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]\n"
-    "               [--config FILE] [--tiles] [--probe metric|neural]\n";
+    "               [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]\n";
 
 absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
   Args a;
@@ -72,6 +78,8 @@ absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
       if (a.probe != "metric" && a.probe != "neural")
         return absl::InvalidArgumentError(
             absl::StrCat("--probe '", a.probe, "' is not metric or neural"));
+    } else if (arg == "--query-points") {
+      RIM_ASSIGN_OR_RETURN(a.query_points, value("--query-points"));
     } else if (arg == "--frames") {
       RIM_ASSIGN_OR_RETURN(std::string range, value("--frames"));
       std::vector<std::string> parts = absl::StrSplit(range, ':');
@@ -126,6 +134,49 @@ void ProgressBar(size_t done, size_t total, double ms_per_frame, float loss) {
                std::string(filled, '#').c_str(), std::string(width - filled, '.').c_str(), done,
                total, ms_per_frame, loss);
   std::fflush(stderr);
+}
+
+// --query-points: the final map's answers at the file's points, beside the exact distance to
+// the dataset's ground truth when it has one.
+absl::Status AnswerQueryPoints(const Args& args, const Mapper& mapper) {
+  std::ifstream in(args.query_points);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", args.query_points));
+  std::vector<float> xyz;
+  std::string line;
+  for (int row = 1; std::getline(in, line); ++row) {
+    if (line.empty()) continue;
+    std::vector<std::string> f = absl::StrSplit(line, ',');
+    float v[3];
+    if (f.size() != 3 || !absl::SimpleAtof(f[0], &v[0]) || !absl::SimpleAtof(f[1], &v[1]) ||
+        !absl::SimpleAtof(f[2], &v[2])) {
+      if (row == 1 && xyz.empty()) continue;  // a header
+      return absl::InvalidArgumentError(
+          absl::StrCat(args.query_points, ":", row, ": expected x,y,z, got '", line, "'"));
+    }
+    xyz.insert(xyz.end(), {v[0], v[1], v[2]});
+  }
+  QueryResult q;
+  RIM_RETURN_IF_ERROR(mapper.QuerySdf(xyz.data(), xyz.size() / 3, false, &q));
+  std::unique_ptr<eval::MeshDistance> gt;
+  if (std::ifstream(args.dataset + "/gt.ply").good()) {
+    RIM_ASSIGN_OR_RETURN(Mesh mesh, ReadMeshPly(args.dataset + "/gt.ply"));
+    gt = std::make_unique<eval::MeshDistance>(mesh);
+  }
+  std::string out = "x,y,z,sdf,observed,gt_distance\n";
+  for (size_t i = 0; i < q.sdf.size(); ++i) {
+    absl::StrAppendFormat(&out, "%.4f,%.4f,%.4f,%.4f,%d,", xyz[3 * i], xyz[3 * i + 1],
+                          xyz[3 * i + 2], q.sdf[i], q.observed[i] ? 1 : 0);
+    if (gt) {
+      std::array<float, 3> nearest;
+      absl::StrAppendFormat(&out, "%.4f",
+                            gt->Nearest({xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]}, &nearest));
+    }
+    out += "\n";
+  }
+  std::ofstream f(args.out + "/query.csv");
+  f << out;
+  if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/query.csv"));
+  return absl::OkStatus();
 }
 
 absl::Status Run(const Args& args) {
@@ -214,6 +265,9 @@ absl::Status Run(const Args& args) {
   std::printf("distance field: %lld surfels, %lld returns, %.1f MB, final refresh %.0f ms\n",
               (long long)final_stats.distance_surfels, (long long)final_stats.distance_returns,
               double(final_stats.distance_bytes) / 1e6, 1e3 * final_refresh_s);
+  std::printf("moving things: %lld buffered returns and %lld deferred rays seen through, dropped\n",
+              (long long)final_stats.transient_buffer_removed,
+              (long long)final_stats.transient_deferred_removed);
 
   std::string timing = "{\n  \"stages_ms_per_frame\": {";
   for (const Row& r : rows)
@@ -228,8 +282,12 @@ absl::Status Run(const Args& args) {
       &timing,
       "},\n  \"ms_per_frame\": %.3f,\n  \"frames_per_s\": %.4f,\n  \"frames\": %.0f,\n"
       "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
-      "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n  \"rss_mb_per_frame\": [",
-      1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames, PeakRssMb(), mesh_s);
+      "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n"
+      "  \"transient_buffer_removed\": %lld,\n  \"transient_deferred_removed\": %lld,\n"
+      "  \"rss_mb_per_frame\": [",
+      1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames, PeakRssMb(), mesh_s,
+      (long long)final_stats.transient_buffer_removed,
+      (long long)final_stats.transient_deferred_removed);
   for (size_t i = 0; i < rss_mb.size(); ++i)
     absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
   // The global map grows with the area explored; RSS minus it should stay flat.
@@ -295,6 +353,7 @@ absl::Status Run(const Args& args) {
     f << eval::ProbeReportJson(report);
     if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/probe.json"));
   }
+  if (!args.query_points.empty()) RIM_RETURN_IF_ERROR(AnswerQueryPoints(args, *mapper));
   return absl::OkStatus();
 }
 

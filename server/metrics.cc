@@ -77,6 +77,23 @@ void AddGauge(prometheus::MetricFamily* f, std::vector<prometheus::ClientMetric:
   f->metric.push_back(std::move(m));
 }
 
+// A counter whose value the session keeps (read when Prometheus scrapes).
+prometheus::MetricFamily CounterFamily(const std::string& name, const std::string& help) {
+  prometheus::MetricFamily f;
+  f.name = name;
+  f.help = help;
+  f.type = prometheus::MetricType::Counter;
+  return f;
+}
+
+void AddCounter(prometheus::MetricFamily* f, std::vector<prometheus::ClientMetric::Label> labels,
+                double value) {
+  prometheus::ClientMetric m;
+  m.label = std::move(labels);
+  m.counter.value = value;
+  f->metric.push_back(std::move(m));
+}
+
 }  // namespace
 
 // Event-driven families, registered once.
@@ -224,6 +241,9 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
                               "Host memory held by one session's maps and buffers");
     auto checkpoint = GaugeFamily("rim_checkpoint_bytes", "Size of the session's last checkpoint");
     auto wal = GaugeFamily("rim_wal_bytes", "Size of the session's write-ahead log on disk");
+    auto transient = CounterFamily(
+        "rim_transient_points_removed_total",
+        "Returns dropped because later rays passed clearly through them (moving things), by store");
     double sessions = 0;
     if (sessions_ != nullptr) {
       for (const auto& session : sessions_->List()) {
@@ -242,6 +262,9 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&memory, id, double(SessionHostBytes(*session)));
         AddGauge(&checkpoint, id, double(s.last_checkpoint_bytes));
         AddGauge(&wal, id, double(s.wal_bytes));
+        AddCounter(&transient, {id[0], {"store", "buffer"}}, double(m.transient_buffer_removed));
+        AddCounter(&transient, {id[0], {"store", "deferred"}},
+                   double(m.transient_deferred_removed));
       }
     }
     AddGauge(&active, {}, sessions);
@@ -253,8 +276,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
     AddGauge(&device, {}, 0);
-    return {build,   active, queue,      lag, iterations, rays, loss,
-            submaps, memory, checkpoint, wal, budget,     rss,  device};
+    return {build,  active,     queue, lag,       iterations, rays, loss,   submaps,
+            memory, checkpoint, wal,   transient, budget,     rss,  device};
   }
 
  private:

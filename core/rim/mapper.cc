@@ -25,6 +25,7 @@
 #include "rim/train/point_buffer.h"
 #include "rim/train/sampler.h"
 #include "rim/train/trainer.h"
+#include "rim/train/transient.h"
 
 namespace rim {
 namespace {
@@ -49,6 +50,10 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   buffer_ = std::make_unique<PointBuffer>(config.buffer, config.sampler.seed ^ 0x5bd1e995ull);
   deferred_ = std::make_unique<DeferredPoints>(*geometry_, config.grid, config.deferred);
   trainer_ = std::make_unique<Trainer>(config, local_map_.get(), decoder_.get());
+  if (config.transient.enabled) {
+    transient_ = std::make_unique<TransientFilter>(config.transient);
+    trainer_->SetCleared(&transient_->cleared());
+  }
   outside_ = std::make_unique<OutsideRaysHolder>();
   distance_ = std::make_unique<DistanceField>(
       *geometry_, float(config.query.surfel_radius_voxels * geometry_->leaf_m()));
@@ -136,6 +141,14 @@ void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
       outside.points_W.push_back(p_W);
       outside.origins_W.push_back(o_W);
     }
+  }
+  // Moving things: returns that this scan's rays pass clearly through have gone (transient.h).
+  // Judged before the scan joins the buffer, and only for scans from one sensor origin.
+  if (transient_ && !per_point_origins) {
+    transient_->Apply(scan.points_S, T, min_range, max_range, frames_, buffer_.get(),
+                      deferred_.get(), &aux_mu_, &trainer_->pool());
+    const TransientConfig& tr = config_.transient;
+    transient_->cleared().Expire(frames_, tr.clear_frames, size_t(tr.max_cleared_points), lo, hi);
   }
   // Deferred rays that the box has just reached join the buffer as they are, and are marked like
   // the scan's inside rays (their endpoints observed, their part inside the box seen free).
@@ -793,6 +806,11 @@ MapperStats Mapper::Stats() const {
     std::lock_guard<std::mutex> aux(aux_mu_);
     s.buffer_points = int64_t(buffer_->size());
     deferred = deferred_->Stats();
+    if (transient_) {
+      const TransientStats tr = transient_->Stats();
+      s.transient_buffer_removed = tr.buffer_removed;
+      s.transient_deferred_removed = tr.deferred_removed;
+    }
   }
   s.deferred_points = deferred.points;
   s.deferred_bytes = deferred.bytes;

@@ -35,6 +35,7 @@ class PointBuffer;
 class SlabSaver;
 class SubmapStore;
 class Trainer;
+class TransientFilter;
 class MapGeometry;
 class MeshBlockCache;
 class MeshChangeLog;
@@ -104,6 +105,10 @@ struct MapperStats {
   int64_t distance_surfels = 0;  // the metric distance field (map/distance_field.h)
   int64_t distance_returns = 0;  // its deferred returns (surface the network has not learnt)
   int64_t distance_bytes = 0;
+  // Moving things (train/transient.h), since creation or load: returns dropped from the point
+  // buffer and from the deferred rays because later rays passed clearly through them.
+  int64_t transient_buffer_removed = 0;
+  int64_t transient_deferred_removed = 0;
   int64_t mesh_cache_bytes = 0;  // cached mesh blocks (MeshTile)
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
@@ -248,6 +253,7 @@ class Mapper {
   std::unique_ptr<PointBuffer> buffer_;
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
+  std::unique_ptr<TransientFilter> transient_;  // null when transient.enabled is false
   std::unique_ptr<DistanceField> distance_;
   // What each frame changed, and the mesh blocks of the tiles near the box (MeshTile).
   std::unique_ptr<MeshChangeLog> mesh_changes_;

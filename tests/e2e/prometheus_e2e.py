@@ -198,6 +198,9 @@ def main() -> int:
             (f"rim_meshing_cpu_seconds_total{s}", lambda v: v > 0),
             (f'rim_submaps{{session="{ROBOT}",state="active"}}', lambda v: v >= 1),
             (f"rim_session_host_memory_bytes{s}", lambda v: v > 1e6),
+            # A static scene: later rays pass through nothing that was there.
+            (f'rim_transient_points_removed_total{{session="{ROBOT}",store="buffer"}}',
+             lambda v: v == 0),
             (f"rim_checkpoint_seconds_count{s}", lambda v: v >= 1),
             (f"rim_checkpoint_bytes{s}", lambda v: v > 1000),
             (f"rim_wal_append_seconds_count{s}", lambda v: v == FRAMES),

@@ -63,6 +63,19 @@ void ForEachField(Config& c, Visitor&& v) {
   v("deferred.enabled", c.deferred.enabled);
   v("deferred.voxel_m", c.deferred.voxel_m);
   v("deferred.max_points_per_submap", c.deferred.max_points_per_submap);
+  v("transient.enabled", c.transient.enabled);
+  v("transient.bin_deg", c.transient.bin_deg);
+  v("transient.window_azimuth_bins", c.transient.window_azimuth_bins);
+  v("transient.window_elevation_bins", c.transient.window_elevation_bins);
+  v("transient.margin_m", c.transient.margin_m);
+  v("transient.margin_per_m", c.transient.margin_per_m);
+  v("transient.min_range_m", c.transient.min_range_m);
+  v("transient.max_range_m", c.transient.max_range_m);
+  v("transient.period_frames", c.transient.period_frames);
+  v("transient.clear_samples_per_iteration", c.transient.clear_samples_per_iteration);
+  v("transient.clear_label_m", c.transient.clear_label_m);
+  v("transient.clear_frames", c.transient.clear_frames);
+  v("transient.max_cleared_points", c.transient.max_cleared_points);
   v("submap.block_size", c.submap.block_size);
   v("submap.active_radius_submaps", c.submap.active_radius_submaps);
   v("submap.host_budget_bytes", c.submap.host_budget_bytes);
@@ -203,6 +216,30 @@ absl::Status MapperConfig::Validate() const {
     return Bad("deferred.voxel_m", "gives more than 4e9 voxels per sub-map");
   if (deferred.max_points_per_submap < 8 || deferred.max_points_per_submap > 100000000)
     return Bad("deferred.max_points_per_submap", "must be in [8, 1e8]");
+
+  const TransientConfig& tr = transient;
+  if (!(tr.bin_deg >= 0.05f && tr.bin_deg <= 5.f))
+    return Bad("transient.bin_deg", "must be in [0.05, 5] degrees");
+  if (tr.window_azimuth_bins < 1 || tr.window_azimuth_bins > 8)
+    return Bad("transient.window_azimuth_bins", "must be in [1, 8]");
+  if (tr.window_elevation_bins < 1 || tr.window_elevation_bins > 8)
+    return Bad("transient.window_elevation_bins", "must be in [1, 8]");
+  if (!(tr.margin_m >= 0.05f && tr.margin_m <= 10.f))
+    return Bad("transient.margin_m", "must be in [0.05, 10] m");
+  if (!(tr.margin_per_m >= 0.f && tr.margin_per_m <= 1.f))
+    return Bad("transient.margin_per_m", "must be in [0, 1]");
+  if (!(tr.min_range_m >= 0.f && tr.max_range_m > tr.min_range_m && tr.max_range_m <= 1000.f))
+    return Bad("transient.max_range_m", "must be in (transient.min_range_m, 1000] m");
+  if (tr.period_frames < 1 || tr.period_frames > 1000)
+    return Bad("transient.period_frames", "must be in [1, 1000]");
+  if (tr.clear_samples_per_iteration < 0 || tr.clear_samples_per_iteration > 1 << 20)
+    return Bad("transient.clear_samples_per_iteration", "must be in [0, 1048576]");
+  if (!(tr.clear_label_m > 0.f && tr.clear_label_m <= 10.f))
+    return Bad("transient.clear_label_m", "must be in (0, 10] m");
+  if (tr.clear_frames < 0 || tr.clear_frames > 100000)
+    return Bad("transient.clear_frames", "must be in [0, 100000]");
+  if (tr.max_cleared_points < 0 || tr.max_cleared_points > 100000000)
+    return Bad("transient.max_cleared_points", "must be in [0, 1e8]");
 
   if (!(query.max_distance_m > 0.f && query.max_distance_m <= 100.f))
     return Bad("query.max_distance_m", "must be in (0, 100] m");

@@ -103,6 +103,34 @@ struct DeferredConfig {
   int max_points_per_submap = 100000;  // past it the longest-range rays are dropped first
 };
 
+// Moving things leave no trace (train/transient.h): a return that a later scan's rays clearly pass
+// is dropped from the point buffer and the deferred rays, and free-space samples clear the network
+// where it stood. docs/core.md, "Moving things", gives the rule and why it spares static surfaces.
+struct TransientConfig {
+  bool enabled = true;
+  // The later scan's range image: bins of this angle, in azimuth and elevation, in the sensor
+  // frame.
+  float bin_deg = 0.4f;
+  // A point is judged on the bins within this many bins of its direction, each side: azimuth,
+  // elevation. Rays must surround it (returns on both sides in both directions).
+  int window_azimuth_bins = 1;
+  int window_elevation_bins = 2;
+  // Every return in the window must end at least margin_m + margin_per_m · range beyond it.
+  float margin_m = 0.3f;
+  float margin_per_m = 0.01f;
+  // Points nearer or farther than this from the sensor are not judged.
+  float min_range_m = 1.f;
+  float max_range_m = 40.f;
+  // Each frame judges one in this many of the buffered and deferred points (in turn).
+  int period_frames = 2;
+  // Free-space samples where dropped returns stood: how many per iteration, their label, for how
+  // many frames a dropped return is cleared, and at most how many are held.
+  int clear_samples_per_iteration = 256;
+  float clear_label_m = 0.15f;
+  int clear_frames = 10;
+  int max_cleared_points = 50000;
+};
+
 // Global map of sub-maps (§3.3).
 struct SubmapConfig {
   int block_size = 8;  // sparse storage unit, voxels per edge
@@ -141,6 +169,7 @@ struct MapperConfig {
   SamplerConfig sampler;
   BufferConfig buffer;
   DeferredConfig deferred;
+  TransientConfig transient;
   SubmapConfig submap;
   MeshConfig mesh;
   QueryConfig query;

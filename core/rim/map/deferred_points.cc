@@ -106,6 +106,42 @@ void DeferredPoints::Evict(Table* table) {
   evicted_ += int64_t(dropped);
 }
 
+int64_t DeferredPoints::RemoveIf(const Vec3f& center_W, float radius_m, int period, int phase,
+                                 const std::function<bool(const Vec3f&)>& drop) {
+  if (size_ == 0) return 0;
+  Int3 lo, hi;
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = int(std::floor((center_W[a] - radius_m) / extent_m_[a]));
+    hi[a] = int(std::floor((center_W[a] + radius_m) / extent_m_[a]));
+  }
+  const float r2 = radius_m * radius_m;
+  int64_t removed = 0;
+  for (int x = lo.x(); x <= hi.x(); ++x)
+    for (int y = lo.y(); y <= hi.y(); ++y)
+      for (int z = lo.z(); z <= hi.z(); ++z) {
+        auto sub = submaps_.find(Int3(x, y, z));
+        if (sub == submaps_.end()) continue;
+        Table& table = sub->second;
+        int64_t here = 0;
+        for (auto it = table.begin(); it != table.end();) {
+          const Vec3f p(it->second.p[0], it->second.p[1], it->second.p[2]);
+          if (int(it->first % uint32_t(period)) == phase && (p - center_W).squaredNorm() <= r2 &&
+              drop(p)) {
+            table.erase(it++);
+            ++here;
+          } else {
+            ++it;
+          }
+        }
+        if (here == 0) continue;
+        removed += here;
+        changed_.insert(Int3(x, y, z));
+        if (table.empty()) submaps_.erase(sub);
+      }
+  size_ -= size_t(removed);
+  return removed;
+}
+
 void DeferredPoints::TakeInside(const Vec3d& min_m, const Vec3d& max_m,
                                 std::vector<Vec3f>* points_W, std::vector<Vec3f>* origins_W) {
   if (size_ == 0) return;

@@ -22,6 +22,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
@@ -56,6 +57,12 @@ class DeferredPoints {
   // to points/origins in (sub-map, voxel) order.
   void TakeInside(const Vec3d& min_m, const Vec3d& max_m, std::vector<Vec3f>* points_W,
                   std::vector<Vec3f>* origins_W);
+
+  // Drops the rays whose endpoint lies within radius_m of center_W and for which drop(endpoint)
+  // is true, judging only the voxels v with v % period == phase (period >= 1). Returns how many
+  // were dropped; their sub-maps count as changed. Moving things, train/transient.h.
+  int64_t RemoveIf(const Vec3f& center_W, float radius_m, int period, int phase,
+                   const std::function<bool(const Vec3f&)>& drop);
 
   size_t size() const { return size_; }
   DeferredStats Stats() const;

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "rim/train/train_step.h"
+#include "rim/train/transient.h"
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -131,6 +132,18 @@ absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outs
   }
   const double t0 = Now();
   sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_, rays);
+  const TransientConfig& tr = config_.transient;
+  if (cleared_ != nullptr && cleared_->size() > 0 && tr.clear_samples_per_iteration > 0) {
+    // Drawn only while there is something to clear, so that a map without moving things takes
+    // the same batches as before.
+    const int configured = config_.sampler.rays_per_iteration;
+    const int n = rays > 0 && rays != configured
+                      ? std::max(1, int(int64_t(tr.clear_samples_per_iteration) * rays / configured))
+                      : tr.clear_samples_per_iteration;
+    FastRng rng(sampler_.rng()());
+    cleared_->Sample(n, 3.f * config_.train.sigma_m, tr.clear_label_m,
+                     map_->min_m().cast<float>(), map_->max_m().cast<float>(), &rng, &batch_);
+  }
   if (timing) timing->sample_s += Now() - t0;
   return PrepareBatch(train_decoder, timing);
 }

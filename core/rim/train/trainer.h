@@ -18,6 +18,8 @@
 
 namespace rim {
 
+class ClearedPoints;
+
 struct IterationTiming {
   double sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0, step_s = 0;
 };
@@ -68,6 +70,11 @@ class Trainer {
   absl::StatusOr<float> IterateOn(const SampleBatch& batch, bool train_decoder,
                                   IterationTiming* timing);
 
+  // Free-space samples where moving things stood (train/transient.h): every batch gets
+  // transient.clear_samples_per_iteration of them (scaled to a smaller batch's rays) while
+  // `cleared` holds any. nullptr: none.
+  void SetCleared(const ClearedPoints* cleared) { cleared_ = cleared; }
+
   Sampler& sampler() { return sampler_; }
   // The training threads, for other work of the mapper's between iterations (never during one).
   WorkerPool& pool() { return pool_; }
@@ -103,6 +110,7 @@ class Trainer {
   std::vector<StageFlag> stage_flags_;
   bool grad_ready_ = false;
   bool prepared_ = false;                        // Prepare left a batch for Apply
+  const ClearedPoints* cleared_ = nullptr;
   std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
 };

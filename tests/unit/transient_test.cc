@@ -1,0 +1,332 @@
+// Moving things leave no trace (train/transient.h): returns that later rays pass clearly through
+// are dropped, while static surfaces (a thin pole, walls and ground at grazing angles, a facade
+// seen once from afar, a surface hidden behind something nearer) keep every point.
+#include "rim/train/transient.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <mutex>
+
+#include "rim/config/config.h"
+#include "rim/map/map_geometry.h"
+#include "rim/mapper.h"
+#include "support/analytic_scene.h"
+
+namespace rim {
+namespace {
+
+using testing::HasSubstr;
+using testing_support::AnalyticScene;
+using testing_support::Box;
+using testing_support::Cylinder;
+
+// A 64-beam spinning LiDAR like the simulator's car sensor (0.43° between rings, 0.2° columns).
+testing_support::LidarModel CarLidar(float noise_m = 0.f) {
+  testing_support::LidarModel lidar;
+  lidar.beams = 64;
+  lidar.columns = 1800;
+  lidar.elev_min_deg = -25.f;
+  lidar.elev_max_deg = 2.f;
+  lidar.max_range_m = 60.f;
+  lidar.noise_stddev_m = noise_m;
+  return lidar;
+}
+
+Eigen::Isometry3f PoseAt(float x, float y, float z = 1.7f) {
+  Eigen::Isometry3f T = Eigen::Isometry3f::Identity();
+  T.translation() = Eigen::Vector3f(x, y, z);
+  return T;
+}
+
+// A scan's points in the sensor frame and in the world frame.
+struct Scan {
+  std::vector<Vec3f> points_S, points_W, origins_W;
+  Eigen::Isometry3f T;
+};
+
+Scan Take(const AnalyticScene& scene, const Eigen::Isometry3f& T, uint32_t seed,
+          const testing_support::LidarModel& lidar = CarLidar()) {
+  Scan s;
+  s.T = T;
+  for (const Eigen::Vector3f& p : testing_support::SimulateScan(scene, lidar, T, seed)) {
+    s.points_S.push_back(p);
+    s.points_W.push_back(T * p);
+    s.origins_W.push_back(T.translation());
+  }
+  return s;
+}
+
+AnalyticScene Ground() {
+  AnalyticScene scene;
+  scene.ground_z = 0.f;
+  return scene;
+}
+
+// A buffer holding every return of `first` (no per-frame subset, no bound in the way).
+PointBuffer BufferOf(const Scan& first) {
+  BufferConfig config;
+  config.max_points = 10000000;
+  config.max_points_per_frame = 10000000;
+  PointBuffer buffer(config, 1);
+  buffer.AddFrame(first.points_W, first.origins_W);
+  return buffer;
+}
+
+// Applies the filter of `later` to the buffer; returns how many of the points matching `in`
+// (before) were dropped, and how many matched.
+template <typename Pred>
+std::pair<int, int> DroppedWhere(const Scan& later, PointBuffer* buffer, Pred in,
+                                 TransientConfig config = TransientConfig()) {
+  config.period_frames = 1;
+  int matched_before = 0, matched_after = 0;
+  for (const Vec3f& p : buffer->points()) matched_before += in(p);
+  TransientFilter filter(config);
+  std::mutex mu;
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, buffer, nullptr, &mu, nullptr);
+  for (const Vec3f& p : buffer->points()) matched_after += in(p);
+  return {matched_before - matched_after, matched_before};
+}
+
+TEST(TransientTest, AWallSeenThenARayThroughItIsDropped) {
+  AnalyticScene before = Ground();
+  before.boxes.push_back({Eigen::Vector3f(8.f, -1.f, -0.05f), Eigen::Vector3f(8.5f, 1.f, 2.f)});
+  before.boxes.push_back({Eigen::Vector3f(20.f, -8.f, -0.05f), Eigen::Vector3f(21.f, 8.f, 6.f)});
+  AnalyticScene after = before;
+  after.boxes.erase(after.boxes.begin());  // the near wall has gone; the far one stays
+
+  PointBuffer buffer = BufferOf(Take(before, PoseAt(0, 0), 1));
+  const Scan later = Take(after, PoseAt(1.f, 0.2f), 2);
+  auto on_wall = [](const Vec3f& p) { return p.x() < 8.6f && p.x() > 7.9f && p.z() > 0.3f; };
+  auto static_ = [](const Vec3f& p) { return !(p.x() < 8.6f && p.x() > 7.9f && p.z() > 0.05f); };
+  const auto [wall_dropped, wall] = DroppedWhere(later, &buffer, on_wall);
+  ASSERT_GT(wall, 500);
+  EXPECT_GE(wall_dropped, int(0.95 * wall)) << wall_dropped << " of " << wall;
+  // Nothing static goes: not the ground in front of, beside or behind the wall, nor the far wall.
+  PointBuffer again = BufferOf(Take(before, PoseAt(0, 0), 1));
+  const auto [static_dropped, statics] = DroppedWhere(later, &again, static_);
+  ASSERT_GT(statics, 10000);
+  EXPECT_EQ(static_dropped, 0) << "of " << statics;
+}
+
+TEST(TransientTest, DroppedPointsJoinTheClearedSetAndExpire) {
+  AnalyticScene before = Ground();
+  before.boxes.push_back({Eigen::Vector3f(6.f, -0.3f, -0.05f), Eigen::Vector3f(6.5f, 0.3f, 1.8f)});
+  PointBuffer buffer = BufferOf(Take(before, PoseAt(0, 0), 1));
+  TransientConfig config;
+  config.period_frames = 1;
+  TransientFilter filter(config);
+  std::mutex mu;
+  const Scan later = Take(Ground(), PoseAt(0, 0), 2);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 7, &buffer, nullptr, &mu, nullptr);
+  const size_t cleared = filter.cleared().size();
+  EXPECT_GT(cleared, 100u);
+  EXPECT_EQ(int64_t(cleared), filter.Stats().buffer_removed);
+  // Samples lie around the dropped points, labelled free.
+  SampleBatch batch;
+  FastRng rng(3);
+  filter.cleared().Sample(500, 0.15f, 0.15f, Vec3f::Constant(-100), Vec3f::Constant(100), &rng,
+                          &batch);
+  ASSERT_EQ(batch.size(), 500u);
+  for (size_t i = 0; i < batch.size(); ++i) {
+    EXPECT_EQ(batch.labels[i], 0.15f);
+    EXPECT_NEAR(batch.xyz[3 * i], 6.f, 0.3f);
+  }
+  const Vec3d lo = Vec3d::Constant(-100), hi = Vec3d::Constant(100);
+  filter.cleared().Expire(7 + 10, 10, 1000000, lo, hi);
+  EXPECT_EQ(filter.cleared().size(), cleared);  // dropped at frame 7: still cleared at 17
+  filter.cleared().Expire(7 + 11, 10, 1000000, lo, hi);
+  EXPECT_EQ(filter.cleared().size(), 0u);
+}
+
+TEST(TransientTest, AThinPoleHitByAFewBeamsAndGrazedByManyIsKept) {
+  AnalyticScene scene = Ground();
+  // A 5 cm-radius pole: about three columns of every ring hit it from 8 m, and the columns
+  // beside them pass within a few centimetres on to the building behind.
+  scene.cylinders.push_back({Eigen::Vector2f(10.f, 0.f), 0.05f, -0.05f, 3.f});
+  scene.boxes.push_back({Eigen::Vector3f(25.f, -10.f, -0.05f), Eigen::Vector3f(26.f, 10.f, 8.f)});
+  auto on_pole = [](const Vec3f& p) { return (p.head<2>() - Eigen::Vector2f(10, 0)).norm() < 0.1f; };
+  for (const Eigen::Isometry3f& later_pose : {PoseAt(2.f, 1.f), PoseAt(-4.f, -1.f), PoseAt(5, 2)}) {
+    PointBuffer buffer = BufferOf(Take(scene, PoseAt(0, 0), 1));
+    const auto [dropped, pole] = DroppedWhere(Take(scene, later_pose, 2, CarLidar(0.03f)),
+                                              &buffer, on_pole);
+    ASSERT_GT(pole, 20);
+    EXPECT_EQ(dropped, 0) << "of " << pole << " from " << later_pose.translation().transpose();
+  }
+}
+
+TEST(TransientTest, GroundAndWallsAtGrazingAnglesAreKept) {
+  AnalyticScene scene = Ground();
+  // A street: long facades 6 m either side, seen at grazing angles far along it.
+  scene.boxes.push_back({Eigen::Vector3f(-60.f, 6.f, -0.05f), Eigen::Vector3f(60.f, 7.f, 10.f)});
+  scene.boxes.push_back({Eigen::Vector3f(-60.f, -8.f, -0.05f), Eigen::Vector3f(60.f, -6.f, 4.f)});
+  for (float noise : {0.f, 0.03f}) {
+    PointBuffer buffer = BufferOf(Take(scene, PoseAt(0, 0), 1, CarLidar(noise)));
+    for (const Eigen::Isometry3f& later_pose : {PoseAt(1, 0.3f), PoseAt(10, -0.5f), PoseAt(-7, 1)}) {
+      const auto [dropped, all] = DroppedWhere(Take(scene, later_pose, 5, CarLidar(noise)), &buffer,
+                                               [](const Vec3f&) { return true; });
+      ASSERT_GT(all, 50000);
+      EXPECT_EQ(dropped, 0) << "noise " << noise << ", from " << later_pose.translation().transpose();
+    }
+  }
+}
+
+TEST(TransientTest, SurfacesHiddenOrSeenOnceFromAfarAreKept) {
+  AnalyticScene scene = Ground();
+  // A high facade, seen from afar by a sensor that looks up, later only from below its field.
+  scene.boxes.push_back({Eigen::Vector3f(30.f, -10.f, 4.f), Eigen::Vector3f(31.f, 10.f, 12.f)});
+  testing_support::LidarModel up = CarLidar();
+  up.elev_max_deg = 20.f;
+  PointBuffer buffer = BufferOf(Take(scene, PoseAt(0, 0), 1, up));
+  auto high = [](const Vec3f& p) { return p.z() > 3.9f; };
+  const auto [dropped_high, highs] = DroppedWhere(Take(scene, PoseAt(12, 0), 2), &buffer, high);
+  ASSERT_GT(highs, 1000);
+  EXPECT_EQ(dropped_high, 0);
+
+  // A wall behind a van parked in front of it later: the van's returns are nearer.
+  AnalyticScene street = Ground();
+  street.boxes.push_back({Eigen::Vector3f(12.f, -4.f, -0.05f), Eigen::Vector3f(13.f, 4.f, 3.f)});
+  AnalyticScene parked = street;
+  parked.boxes.push_back({Eigen::Vector3f(6.f, -1.5f, -0.05f), Eigen::Vector3f(7.f, 1.5f, 2.5f)});
+  PointBuffer wall = BufferOf(Take(street, PoseAt(0, 0), 1));
+  auto on_wall = [](const Vec3f& p) { return p.x() > 11.9f; };
+  const auto [dropped_wall, walls] = DroppedWhere(Take(parked, PoseAt(0, 0), 2), &wall, on_wall);
+  ASSERT_GT(walls, 1000);
+  EXPECT_EQ(dropped_wall, 0);
+}
+
+TEST(TransientTest, DeferredRaysSeenThroughAreDroppedAndStaticOnesKept) {
+  auto config = MakePreset("maicity");
+  ASSERT_TRUE(config.ok());
+  MapGeometry geometry(config->grid);
+  DeferredPoints deferred(geometry, config->grid, config->deferred);
+  // A person 25 m ahead (outside the ±10 m box) in front of a building 40 m ahead.
+  AnalyticScene before = Ground();
+  before.boxes.push_back({Eigen::Vector3f(40.f, -10.f, -0.05f), Eigen::Vector3f(41.f, 10.f, 8.f)});
+  AnalyticScene after = before;
+  before.cylinders.push_back({Eigen::Vector2f(25.f, 0.f), 0.25f, -0.05f, 1.8f});
+  const Scan first = Take(before, PoseAt(0, 0), 1);
+  std::vector<Vec3f> outside_p, outside_o;
+  for (size_t i = 0; i < first.points_W.size(); ++i) {
+    if (first.points_W[i].x() < 10.f) continue;
+    outside_p.push_back(first.points_W[i]);
+    outside_o.push_back(first.origins_W[i]);
+  }
+  deferred.Add(outside_p, outside_o, first.T.translation());
+  auto count = [&](auto pred) {
+    int n = 0;
+    for (const Vec3f& p : outside_p) n += pred(p);
+    return n;
+  };
+  ASSERT_GT(count([](const Vec3f& p) { return p.x() < 26.f && p.z() > 0.3f; }), 20);
+  const size_t held = deferred.size();
+  TransientConfig tc;
+  tc.period_frames = 1;
+  TransientFilter filter(tc);
+  PointBuffer empty(config->buffer, 1);
+  std::mutex mu;
+  const Scan later = Take(after, PoseAt(5, 0), 2);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &empty, &deferred, &mu, nullptr);
+  const int64_t removed = filter.Stats().deferred_removed;
+  EXPECT_GT(removed, 0);
+  EXPECT_EQ(deferred.size(), held - size_t(removed));
+  // What is left: the building and the ground, and at most the person's feet (within 0.3 m of
+  // the ground, which rays below end in front of).
+  std::vector<uint32_t> voxels;
+  std::vector<float> rays;
+  int person_left = 0, kept = 0;
+  for (int x = -4; x <= 4; ++x) {
+    for (int y = -4; y <= 4; ++y) {
+      for (int z = -2; z <= 2; ++z) {
+        deferred.Rays(Int3(x, y, z), &voxels, &rays);
+        for (size_t i = 0; i < voxels.size(); ++i) {
+          ++kept;
+          const Vec3f p(rays[6 * i], rays[6 * i + 1], rays[6 * i + 2]);
+          person_left += (p.head<2>() - Eigen::Vector2f(25, 0)).norm() < 0.5f && p.z() > 0.3f;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(person_left, 0);
+  EXPECT_EQ(size_t(kept), deferred.size());
+}
+
+TEST(TransientTest, BadConfigValuesNameTheField) {
+  for (const char* kv :
+       {"transient.margin_m=0", "transient.bin_deg=NaN", "transient.window_elevation_bins=0",
+        "transient.max_range_m=0.5", "transient.period_frames=0", "transient.clear_label_m=-1",
+        "transient.clear_samples_per_iteration=-3", "transient.max_cleared_points=-1"}) {
+    auto config = MakePreset("maicity");
+    ASSERT_TRUE(config.ok());
+    const absl::Status s = ApplyOverrides({kv}, &*config);
+    EXPECT_FALSE(s.ok()) << kv;
+    const std::string key(kv, std::string(kv).find('='));
+    EXPECT_THAT(std::string(s.message()), HasSubstr(key)) << kv;
+  }
+}
+
+// The whole mapper: a person stands in front of a stationary robot for a few frames, then walks
+// off. Later scans see through where they stood: the mesh and the network forget them. Without
+// the filter the same run keeps them, so the test shows the filter is what clears them.
+struct PersonRun {
+  int mesh_vertices_in_person = 0;
+  float min_sdf_on_person_face = -1.f;
+  int64_t buffer_removed = 0;
+};
+
+PersonRun RunPerson(bool enabled) {
+  auto config = MakePreset("maicity");
+  EXPECT_TRUE(ApplyOverrides({"train.iterations=10", "decoder.freeze_after_frames=5",
+                              std::string("transient.enabled=") + (enabled ? "true" : "false")},
+                             &*config)
+                  .ok());
+  auto mapper = Mapper::Create(*config);
+  EXPECT_TRUE(mapper.ok());
+  AnalyticScene scene = Ground();
+  scene.boxes.push_back({Eigen::Vector3f(8.f, -6.f, -0.05f), Eigen::Vector3f(9.f, 6.f, 4.f)});
+  AnalyticScene with_person = scene;
+  with_person.boxes.push_back(
+      {Eigen::Vector3f(4.f, -0.3f, -0.05f), Eigen::Vector3f(4.5f, 0.3f, 1.8f)});
+  testing_support::LidarModel lidar = CarLidar(0.01f);
+  lidar.columns = 900;
+  for (int f = 0; f < 24; ++f) {
+    const Eigen::Isometry3f T = PoseAt(0.05f * float(f % 3), 0.f);
+    PosedScan scan;
+    scan.T_world_sensor = T.cast<double>();
+    scan.points_S = testing_support::SimulateScan(f < 6 ? with_person : scene, lidar, T, 10 + f);
+    EXPECT_TRUE((*mapper)->IntegrateScan(scan).ok());
+  }
+  PersonRun run;
+  for (const TileInfo& t : (*mapper)->ListTiles(0)) {
+    auto mesh = (*mapper)->ExtractMeshTile(t.key);
+    EXPECT_TRUE(mesh.ok());
+    for (const auto& v : mesh->vertices)
+      run.mesh_vertices_in_person += v[0] > 3.9f && v[0] < 4.6f && std::abs(v[1]) < 0.35f &&
+                                     v[2] > 0.3f && v[2] < 1.7f;
+  }
+  std::vector<float> xyz;
+  for (float y = -0.2f; y <= 0.2f; y += 0.1f)
+    for (float z = 0.5f; z <= 1.5f; z += 0.25f) xyz.insert(xyz.end(), {4.f, y, z});
+  QueryResult q;
+  EXPECT_TRUE((*mapper)->QueryNeural(xyz.data(), xyz.size() / 3, false, &q).ok());
+  float lowest = 1e9f;
+  for (float s : q.sdf) lowest = std::min(lowest, s);
+  run.min_sdf_on_person_face = lowest;
+  run.buffer_removed = (*mapper)->Stats().transient_buffer_removed;
+  return run;
+}
+
+TEST(TransientTest, AMapperForgetsAPersonWhoWalkedOff) {
+  const PersonRun with = RunPerson(true);
+  const PersonRun without = RunPerson(false);
+  EXPECT_GT(with.buffer_removed, 100);
+  EXPECT_EQ(without.buffer_removed, 0);
+  // Without the filter the person stays in the mesh as a wall, and the network reads the face
+  // as surface; with it, no vertex is left there and the face reads free.
+  EXPECT_GT(without.mesh_vertices_in_person, 50);
+  EXPECT_EQ(with.mesh_vertices_in_person, 0);
+  EXPECT_GT(with.min_sdf_on_person_face, 0.05f);
+}
+
+}  // namespace
+}  // namespace rim
