@@ -265,9 +265,12 @@ absl::Status Run(const Args& args) {
   std::printf("distance field: %lld surfels, %lld returns, %.1f MB, final refresh %.0f ms\n",
               (long long)final_stats.distance_surfels, (long long)final_stats.distance_returns,
               double(final_stats.distance_bytes) / 1e6, 1e3 * final_refresh_s);
-  std::printf("moving things: %lld buffered returns and %lld deferred rays seen through, dropped\n",
-              (long long)final_stats.transient_buffer_removed,
-              (long long)final_stats.transient_deferred_removed);
+  std::printf(
+      "moving things: %lld buffered returns, %lld deferred rays and %lld voxels the box had left "
+      "seen through, dropped\n",
+      (long long)final_stats.transient_buffer_removed,
+      (long long)final_stats.transient_deferred_removed,
+      (long long)final_stats.transient_departed_removed);
 
   std::string timing = "{\n  \"stages_ms_per_frame\": {";
   for (const Row& r : rows)
@@ -284,10 +287,12 @@ absl::Status Run(const Args& args) {
       "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
       "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n"
       "  \"transient_buffer_removed\": %lld,\n  \"transient_deferred_removed\": %lld,\n"
+      "  \"transient_departed_removed\": %lld,\n"
       "  \"rss_mb_per_frame\": [",
       1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames, PeakRssMb(), mesh_s,
       (long long)final_stats.transient_buffer_removed,
-      (long long)final_stats.transient_deferred_removed);
+      (long long)final_stats.transient_deferred_removed,
+      (long long)final_stats.transient_departed_removed);
   for (size_t i = 0; i < rss_mb.size(); ++i)
     absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
   // The global map grows with the area explored; RSS minus it should stay flat.

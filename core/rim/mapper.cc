@@ -146,7 +146,7 @@ void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
   // Judged before the scan joins the buffer, and only for scans from one sensor origin.
   if (transient_ && !per_point_origins) {
     transient_->Apply(scan.points_S, T, min_range, max_range, frames_, buffer_.get(),
-                      deferred_.get(), &aux_mu_, &trainer_->pool());
+                      deferred_.get(), local_map_.get(), &aux_mu_, &trainer_->pool());
     const TransientConfig& tr = config_.transient;
     transient_->cleared().Expire(frames_, tr.clear_frames, size_t(tr.max_cleared_points), lo, hi);
   }
@@ -246,6 +246,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     if (old_box) changed.push_back(*old_box);
     mesh_changes_->Record(changed, train_decoder && n_iter > 0);
     if (train_decoder && n_iter > 0) distance_all_stale_ = true;
+    if (transient_) ClearDepartedLocked();
     RIM_RETURN_IF_ERROR(
         store_->UpdateActivity(geometry_->SubmapOfPoint(scan.T_world_sensor.translation())));
   }
@@ -319,6 +320,29 @@ absl::StatusOr<int> Mapper::TrainBetweenFrames(int iterations, int rays_per_iter
     timing->rays_per_iteration = rays;
   }
   return done;
+}
+
+void Mapper::ClearDepartedLocked() {
+  std::vector<Int3> cells = transient_->TakeOutsideCells();
+  if (cells.empty()) return;
+  saver_->Flush();  // the slabs that left with them are in the store
+  const std::vector<Int3> keys = store_->ClearObserved(cells);
+  if (keys.empty()) return;
+  // One region per sub-map: the cells' bounds there, widened by one voxel (the cells that have
+  // them as corners).
+  std::vector<IntBox> regions;
+  for (const Int3& key : keys) {
+    IntBox b{Int3::Constant(INT32_MAX), Int3::Constant(INT32_MIN)};
+    for (const Int3& g : cells) {
+      if (geometry_->SubmapOfLattice(0, g) != key) continue;
+      b.lo = b.lo.cwiseMin(g - Int3::Ones());
+      b.hi = b.hi.cwiseMax(g + Int3::Ones());
+    }
+    regions.push_back(b);
+    store_->SetVersion(key, map_version_.load());
+  }
+  mesh_changes_->Record(regions, false);
+  distance_pending_.insert(distance_pending_.end(), regions.begin(), regions.end());
 }
 
 void Mapper::BumpVersions(bool decoder_changed, const IntBox* old_box) {
@@ -644,7 +668,9 @@ double Mapper::RefreshDistanceField() {
     regions.push_back(*box);
     if (distance_box_ && !(distance_box_->lo == box->lo && distance_box_->hi == box->hi))
       regions.push_back(*distance_box_);
+    regions.insert(regions.end(), distance_pending_.begin(), distance_pending_.end());
   }
+  distance_pending_.clear();
   for (const IntBox& r : box ? std::vector<IntBox>{*box} : std::vector<IntBox>{}) {
     const Int3 lo = geometry_->SubmapOfLattice(0, r.lo), hi = geometry_->SubmapOfLattice(0, r.hi);
     for (int x = lo.x(); x <= hi.x(); ++x)
@@ -810,6 +836,7 @@ MapperStats Mapper::Stats() const {
       const TransientStats tr = transient_->Stats();
       s.transient_buffer_removed = tr.buffer_removed;
       s.transient_deferred_removed = tr.deferred_removed;
+      s.transient_departed_removed = tr.departed_removed;
     }
   }
   s.deferred_points = deferred.points;

@@ -109,7 +109,8 @@ struct MapperStats {
   // buffer and from the deferred rays because later rays passed clearly through them.
   int64_t transient_buffer_removed = 0;
   int64_t transient_deferred_removed = 0;
-  int64_t mesh_cache_bytes = 0;  // cached mesh blocks (MeshTile)
+  int64_t transient_departed_removed = 0;  // points the box had left, seen through after
+  int64_t mesh_cache_bytes = 0;            // cached mesh blocks (MeshTile)
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
   bool decoder_frozen = false;
@@ -218,6 +219,10 @@ class Mapper {
   bool SlideTo(const Vec3d& position_W);
   void Preprocess(const PosedScan& scan, bool box_moved);
   void BumpVersions(bool decoder_changed, const IntBox* old_box);
+  // Moving things seen through after the box left them (TransientFilter::TakeOutsideCells): their
+  // voxels in the store read seen free, their tiles' versions move, and their meshes and distance
+  // surfels are made again. Caller holds mu_ alone.
+  void ClearDepartedLocked();
   // Up to `iterations` training iterations of `rays` rays, each while *keep_going (when given)
   // says so; adds their losses to *loss_sum. Returns the iterations run. The caller holds
   // frame_mu_; mu_ is taken per iteration (shared to read, alone to write).
@@ -260,6 +265,9 @@ class Mapper {
   std::unique_ptr<MeshBlockCache> mesh_cache_;
   // Refresh state (training thread only): the widened box of the last refresh, the frame count
   // then, and whether the decoder changed since (which moves every surfel).
+  // Regions whose voxels the moving-things filter marked seen free in the global map since the
+  // last refresh: the next refresh re-extracts them (under mu_).
+  std::vector<IntBox> distance_pending_;
   std::unique_ptr<IntBox> distance_box_;
   mutable std::mutex refresh_mu_;  // one refresh (or save) at a time
   int64_t distance_frames_ = -1;

@@ -83,7 +83,7 @@ std::pair<int, int> DroppedWhere(const Scan& later, PointBuffer* buffer, Pred in
   for (const Vec3f& p : buffer->points()) matched_before += in(p);
   TransientFilter filter(config);
   std::mutex mu;
-  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, buffer, nullptr, &mu, nullptr);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, buffer, nullptr, nullptr, &mu, nullptr);
   for (const Vec3f& p : buffer->points()) matched_after += in(p);
   return {matched_before - matched_after, matched_before};
 }
@@ -118,7 +118,7 @@ TEST(TransientTest, DroppedPointsJoinTheClearedSetAndExpire) {
   TransientFilter filter(config);
   std::mutex mu;
   const Scan later = Take(Ground(), PoseAt(0, 0), 2);
-  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 7, &buffer, nullptr, &mu, nullptr);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 7, &buffer, nullptr, nullptr, &mu, nullptr);
   const size_t cleared = filter.cleared().size();
   EXPECT_GT(cleared, 100u);
   EXPECT_EQ(int64_t(cleared), filter.Stats().buffer_removed);
@@ -145,11 +145,13 @@ TEST(TransientTest, AThinPoleHitByAFewBeamsAndGrazedByManyIsKept) {
   // beside them pass within a few centimetres on to the building behind.
   scene.cylinders.push_back({Eigen::Vector2f(10.f, 0.f), 0.05f, -0.05f, 3.f});
   scene.boxes.push_back({Eigen::Vector3f(25.f, -10.f, -0.05f), Eigen::Vector3f(26.f, 10.f, 8.f)});
-  auto on_pole = [](const Vec3f& p) { return (p.head<2>() - Eigen::Vector2f(10, 0)).norm() < 0.1f; };
+  auto on_pole = [](const Vec3f& p) {
+    return (p.head<2>() - Eigen::Vector2f(10, 0)).norm() < 0.1f;
+  };
   for (const Eigen::Isometry3f& later_pose : {PoseAt(2.f, 1.f), PoseAt(-4.f, -1.f), PoseAt(5, 2)}) {
     PointBuffer buffer = BufferOf(Take(scene, PoseAt(0, 0), 1));
-    const auto [dropped, pole] = DroppedWhere(Take(scene, later_pose, 2, CarLidar(0.03f)),
-                                              &buffer, on_pole);
+    const auto [dropped, pole] =
+        DroppedWhere(Take(scene, later_pose, 2, CarLidar(0.03f)), &buffer, on_pole);
     ASSERT_GT(pole, 20);
     EXPECT_EQ(dropped, 0) << "of " << pole << " from " << later_pose.translation().transpose();
   }
@@ -162,11 +164,13 @@ TEST(TransientTest, GroundAndWallsAtGrazingAnglesAreKept) {
   scene.boxes.push_back({Eigen::Vector3f(-60.f, -8.f, -0.05f), Eigen::Vector3f(60.f, -6.f, 4.f)});
   for (float noise : {0.f, 0.03f}) {
     PointBuffer buffer = BufferOf(Take(scene, PoseAt(0, 0), 1, CarLidar(noise)));
-    for (const Eigen::Isometry3f& later_pose : {PoseAt(1, 0.3f), PoseAt(10, -0.5f), PoseAt(-7, 1)}) {
+    for (const Eigen::Isometry3f& later_pose :
+         {PoseAt(1, 0.3f), PoseAt(10, -0.5f), PoseAt(-7, 1)}) {
       const auto [dropped, all] = DroppedWhere(Take(scene, later_pose, 5, CarLidar(noise)), &buffer,
                                                [](const Vec3f&) { return true; });
       ASSERT_GT(all, 50000);
-      EXPECT_EQ(dropped, 0) << "noise " << noise << ", from " << later_pose.translation().transpose();
+      EXPECT_EQ(dropped, 0) << "noise " << noise << ", from "
+                            << later_pose.translation().transpose();
     }
   }
 }
@@ -226,7 +230,9 @@ TEST(TransientTest, DeferredRaysSeenThroughAreDroppedAndStaticOnesKept) {
   PointBuffer empty(config->buffer, 1);
   std::mutex mu;
   const Scan later = Take(after, PoseAt(5, 0), 2);
-  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &empty, &deferred, &mu, nullptr);
+  // Each frame walks every other sub-map of the deferred store (period 1: two frames for all).
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &empty, &deferred, nullptr, &mu, nullptr);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 1, &empty, &deferred, nullptr, &mu, nullptr);
   const int64_t removed = filter.Stats().deferred_removed;
   EXPECT_GT(removed, 0);
   EXPECT_EQ(deferred.size(), held - size_t(removed));
@@ -301,8 +307,8 @@ PersonRun RunPerson(bool enabled) {
     auto mesh = (*mapper)->ExtractMeshTile(t.key);
     EXPECT_TRUE(mesh.ok());
     for (const auto& v : mesh->vertices)
-      run.mesh_vertices_in_person += v[0] > 3.9f && v[0] < 4.6f && std::abs(v[1]) < 0.35f &&
-                                     v[2] > 0.3f && v[2] < 1.7f;
+      run.mesh_vertices_in_person +=
+          v[0] > 3.9f && v[0] < 4.6f && std::abs(v[1]) < 0.35f && v[2] > 0.3f && v[2] < 1.7f;
   }
   std::vector<float> xyz;
   for (float y = -0.2f; y <= 0.2f; y += 0.1f)
@@ -326,6 +332,52 @@ TEST(TransientTest, AMapperForgetsAPersonWhoWalkedOff) {
   EXPECT_GT(without.mesh_vertices_in_person, 50);
   EXPECT_EQ(with.mesh_vertices_in_person, 0);
   EXPECT_GT(with.min_sdf_on_person_face, 0.05f);
+}
+
+// A person beside the road stays until the robot's box has left them behind, then walks off: the
+// rays that later pass where they stood come from a box that no longer holds the place. Their
+// voxels in the global map read seen free, and the tile there meshes without them.
+int MeshVerticesWherePersonStoodAfterDriving(int departed_frames) {
+  auto config = MakePreset("maicity");
+  EXPECT_TRUE(ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5",
+                              "transient.departed_frames=" + std::to_string(departed_frames)},
+                             &*config)
+                  .ok());
+  auto mapper = Mapper::Create(*config);
+  EXPECT_TRUE(mapper.ok());
+  AnalyticScene scene = Ground();
+  // A facade behind the person, long enough that every ray through where they stood ends on it
+  // (rays into the sky are no evidence).
+  scene.boxes.push_back({Eigen::Vector3f(-80.f, 8.f, -0.05f), Eigen::Vector3f(60.f, 9.f, 5.f)});
+  AnalyticScene with_person = scene;
+  with_person.boxes.push_back(
+      {Eigen::Vector3f(2.f, 3.f, -0.05f), Eigen::Vector3f(2.5f, 3.6f, 1.8f)});
+  testing_support::LidarModel lidar = CarLidar(0.01f);
+  lidar.columns = 900;
+  for (int f = 0; f < 26; ++f) {
+    // 1 m a frame along +x: the box (±10 m) leaves x = 2.5 behind at about frame 13; the person
+    // stays until frame 14.
+    const Eigen::Isometry3f T = PoseAt(float(f), 0.f);
+    PosedScan scan;
+    scan.T_world_sensor = T.cast<double>();
+    scan.points_S = testing_support::SimulateScan(f <= 14 ? with_person : scene, lidar, T, 40 + f);
+    EXPECT_TRUE((*mapper)->IntegrateScan(scan).ok());
+  }
+  int in_person = 0;
+  for (const TileInfo& t : (*mapper)->ListTiles(0)) {
+    auto mesh = (*mapper)->ExtractMeshTile(t.key);
+    EXPECT_TRUE(mesh.ok());
+    for (const auto& v : mesh->vertices)
+      in_person +=
+          v[0] > 1.9f && v[0] < 2.6f && v[1] > 2.9f && v[1] < 3.7f && v[2] > 0.3f && v[2] < 1.7f;
+  }
+  EXPECT_EQ(departed_frames > 0, (*mapper)->Stats().transient_departed_removed > 0);
+  return in_person;
+}
+
+TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
+  EXPECT_GT(MeshVerticesWherePersonStoodAfterDriving(0), 50);
+  EXPECT_EQ(MeshVerticesWherePersonStoodAfterDriving(30), 0);
 }
 
 }  // namespace

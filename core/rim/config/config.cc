@@ -67,6 +67,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.bin_deg", c.transient.bin_deg);
   v("transient.window_azimuth_bins", c.transient.window_azimuth_bins);
   v("transient.window_elevation_bins", c.transient.window_elevation_bins);
+  v("transient.window_min_m", c.transient.window_min_m);
   v("transient.margin_m", c.transient.margin_m);
   v("transient.margin_per_m", c.transient.margin_per_m);
   v("transient.min_range_m", c.transient.min_range_m);
@@ -76,6 +77,8 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.clear_label_m", c.transient.clear_label_m);
   v("transient.clear_frames", c.transient.clear_frames);
   v("transient.max_cleared_points", c.transient.max_cleared_points);
+  v("transient.departed_frames", c.transient.departed_frames);
+  v("transient.max_departed_points", c.transient.max_departed_points);
   v("submap.block_size", c.submap.block_size);
   v("submap.active_radius_submaps", c.submap.active_radius_submaps);
   v("submap.host_budget_bytes", c.submap.host_budget_bytes);
@@ -224,6 +227,8 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.window_azimuth_bins", "must be in [1, 8]");
   if (tr.window_elevation_bins < 1 || tr.window_elevation_bins > 8)
     return Bad("transient.window_elevation_bins", "must be in [1, 8]");
+  if (!(tr.window_min_m >= 0.f && tr.window_min_m <= 2.f))
+    return Bad("transient.window_min_m", "must be in [0, 2] m");
   if (!(tr.margin_m >= 0.05f && tr.margin_m <= 10.f))
     return Bad("transient.margin_m", "must be in [0.05, 10] m");
   if (!(tr.margin_per_m >= 0.f && tr.margin_per_m <= 1.f))
@@ -240,6 +245,10 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.clear_frames", "must be in [0, 100000]");
   if (tr.max_cleared_points < 0 || tr.max_cleared_points > 100000000)
     return Bad("transient.max_cleared_points", "must be in [0, 1e8]");
+  if (tr.departed_frames < 0 || tr.departed_frames > 100000)
+    return Bad("transient.departed_frames", "must be in [0, 100000]");
+  if (tr.max_departed_points < 0 || tr.max_departed_points > 100000000)
+    return Bad("transient.max_departed_points", "must be in [0, 1e8]");
 
   if (!(query.max_distance_m > 0.f && query.max_distance_m <= 100.f))
     return Bad("query.max_distance_m", "must be in (0, 100] m");

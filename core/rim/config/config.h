@@ -115,6 +115,11 @@ struct TransientConfig {
   // elevation. Rays must surround it (returns on both sides in both directions).
   int window_azimuth_bins = 1;
   int window_elevation_bins = 2;
+  // ... and at least this far each side of the point, in metres at its range: a return's place is
+  // known to a few centimetres (range noise, the beam's footprint, the pose), so near the sensor,
+  // where a bin spans millimetres, a noisy return beside a pole or in front of a car's side must
+  // still see the rays that hit them.
+  float window_min_m = 0.15f;
   // Every return in the window must end at least margin_m + margin_per_m · range beyond it.
   float margin_m = 0.3f;
   float margin_per_m = 0.01f;
@@ -129,6 +134,11 @@ struct TransientConfig {
   float clear_label_m = 0.15f;
   int clear_frames = 10;
   int max_cleared_points = 50000;
+  // Points the box has left are still judged for this many frames (one per finest voxel, at most
+  // max_departed_points): a car that passed the robot, or a person behind it, is often seen
+  // through only after the box has moved on. Their voxels in the global map then read seen free.
+  int departed_frames = 30;
+  int max_departed_points = 200000;
 };
 
 // Global map of sub-maps (§3.3).

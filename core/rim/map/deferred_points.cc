@@ -119,14 +119,14 @@ int64_t DeferredPoints::RemoveIf(const Vec3f& center_W, float radius_m, int peri
   for (int x = lo.x(); x <= hi.x(); ++x)
     for (int y = lo.y(); y <= hi.y(); ++y)
       for (int z = lo.z(); z <= hi.z(); ++z) {
+        if (((x + y + z) % period + period) % period != phase) continue;
         auto sub = submaps_.find(Int3(x, y, z));
         if (sub == submaps_.end()) continue;
         Table& table = sub->second;
         int64_t here = 0;
         for (auto it = table.begin(); it != table.end();) {
           const Vec3f p(it->second.p[0], it->second.p[1], it->second.p[2]);
-          if (int(it->first % uint32_t(period)) == phase && (p - center_W).squaredNorm() <= r2 &&
-              drop(p)) {
+          if ((p - center_W).squaredNorm() <= r2 && drop(p)) {
             table.erase(it++);
             ++here;
           } else {

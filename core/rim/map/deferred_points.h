@@ -59,8 +59,10 @@ class DeferredPoints {
                   std::vector<Vec3f>* origins_W);
 
   // Drops the rays whose endpoint lies within radius_m of center_W and for which drop(endpoint)
-  // is true, judging only the voxels v with v % period == phase (period >= 1). Returns how many
-  // were dropped; their sub-maps count as changed. Moving things, train/transient.h.
+  // is true, judging only the sub-maps (x, y, z) with (x + y + z) mod period == phase (period >=
+  // 1; a walk through a table costs more than judging its rays, so a frame walks only some).
+  // Returns how many were dropped; their sub-maps count as changed. Moving things,
+  // train/transient.h.
   int64_t RemoveIf(const Vec3f& center_W, float radius_m, int period, int phase,
                    const std::function<bool(const Vec3f&)>& drop);
 

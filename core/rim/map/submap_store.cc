@@ -242,6 +242,35 @@ void SubmapStore::CachedReader::ReadRun(int level, const Int3& g, int n, float* 
   z_end_[level] = std::numeric_limits<int>::min();
 }
 
+std::vector<Int3> SubmapStore::ClearObserved(const std::vector<Int3>& cells) {
+  const int B = config_.block_size;
+  const Int3 dims = geometry_.cells(0);
+  std::vector<Int3> changed;
+  std::lock_guard<std::mutex> lock(mu_);
+  for (const Int3& g : cells) {
+    const Int3 key = geometry_.SubmapOfLattice(0, g);
+    Submap* sub = FindLocked(key);
+    if (!sub) continue;
+    const Int3 local = g - key.cwiseProduct(dims);
+    const Int3 block_key = FloorDiv(local, Int3::Constant(B));
+    auto it = sub->blocks[0].find(block_key);
+    if (it == sub->blocks[0].end()) continue;
+    const Int3 in = local - block_key * B;
+    const size_t idx = (size_t(in.x()) * B + in.y()) * B + in.z();
+    if (!(it->second->observed[idx] & LocalMap::kObserved)) continue;
+    // A reader holds this block (ReadBlock): it keeps its snapshot, the store gets a copy.
+    if (it->second.use_count() > 1) it->second = std::make_shared<Block>(*it->second);
+    it->second->observed[idx] = LocalMap::kSeenFree;
+    sub->generation = ++generation_clock_;
+    changed.push_back(key);
+  }
+  std::sort(changed.begin(), changed.end(), [](const Int3& a, const Int3& b) {
+    return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+  });
+  changed.erase(std::unique(changed.begin(), changed.end()), changed.end());
+  return changed;
+}
+
 std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
   const int B = config_.block_size;
   std::vector<Int3> out;

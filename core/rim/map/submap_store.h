@@ -105,6 +105,11 @@ class SubmapStore {
     Int3 last_[kMaxLevels];
     int index_[kMaxLevels] = {}, z_end_[kMaxLevels] = {};
   };
+  // Marks the stored finest voxels `cells` seen free instead of observed (moving things that
+  // later rays passed through after the box had left them, train/transient.h): meshing and the
+  // distance field then skip them. Voxels the store does not hold, or holds unobserved, are left
+  // as they are. Returns the sub-maps that changed, sorted.
+  std::vector<Int3> ClearObserved(const std::vector<Int3>& cells);
   // Finest-level lattice indices of observed voxels stored in a sub-map.
   std::vector<Int3> ObservedCells(const Int3& key) const;
 

@@ -9,6 +9,9 @@ namespace {
 
 constexpr float kPi = 3.14159265358979323846f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
+// Window half-widths are capped (a point 0.3 m away with window_min_m 0.15 m would ask for ±67
+// bins of 0.4°): wider than this the window only costs time.
+constexpr int kMaxWindowBins = 16;
 
 // atan(x) for |x| <= 1, within 2e-8 rad (Abramowitz and Stegun 4.4.49): a range image bins
 // about 100k returns and as many buffered points a frame, where std::atan2 would cost more than
@@ -41,11 +44,10 @@ RangeImage::RangeImage(float bin_deg) {
   inv_bin_rad_ = 1.f / bin_rad;
   na_ = int(std::ceil(2.f * kPi / bin_rad));
   ne_ = int(std::ceil(kPi / bin_rad));
-  range_.assign(size_t(na_) * ne_, kInf);
 }
 
 void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
-  const float az = FastAtan2(d.y(), d.x());                              // (−π, π]
+  const float az = FastAtan2(d.y(), d.x());                                     // (−π, π]
   const float el = FastAtan2(d.z(), std::sqrt(d.x() * d.x() + d.y() * d.y()));  // [−π/2, π/2]
   int a = int((az + kPi) * inv_bin_rad_);
   int e = int((el + 0.5f * kPi) * inv_bin_rad_);
@@ -53,15 +55,44 @@ void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
   *elevation = std::clamp(e, 0, ne_ - 1);
 }
 
-void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m) {
-  std::fill(range_.begin(), range_.end(), kInf);
-  for (const Vec3f& p : points_S) {
-    const float r = p.norm();
-    if (!(r >= min_range_m && r <= max_range_m)) continue;
-    int a, e;
-    BinOf(p, &a, &e);
-    float& slot = range_[size_t(e) * na_ + a];
-    slot = std::min(slot, r);
+void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
+                      WorkerPool* pool) {
+  const size_t n = points_S.size();
+  scratch_.resize(n);
+  // The bins (two arctangents a point, most of the cost) in pieces over the pool.
+  constexpr int kPieces = 4;
+  int piece_lo[kPieces], piece_hi[kPieces];
+  auto piece = [&](int k) {
+    int lo = ne_, hi = -1;
+    for (size_t i = n * size_t(k) / kPieces; i < n * size_t(k + 1) / kPieces; ++i) {
+      const float r = points_S[i].norm();
+      scratch_[i] = ~0u;
+      if (!(r >= min_range_m && r <= max_range_m)) continue;
+      int a, e;
+      BinOf(points_S[i], &a, &e);
+      scratch_[i] = uint32_t(e) << 16 | uint32_t(a);
+      lo = std::min(lo, e);
+      hi = std::max(hi, e);
+    }
+    piece_lo[k] = lo;
+    piece_hi[k] = hi;
+  };
+  if (pool && n >= 4096) {
+    pool->Run(kPieces, piece);
+  } else {
+    for (int k = 0; k < kPieces; ++k) piece(k);
+  }
+  const int lo = *std::min_element(piece_lo, piece_lo + kPieces);
+  const int hi = *std::max_element(piece_hi, piece_hi + kPieces);
+  first_row_ = lo;
+  rows_ = std::max(0, hi - lo + 1);
+  range_cm_.assign(size_t(rows_) * na_, kEmpty);
+  for (size_t i = 0; i < points_S.size(); ++i) {
+    if (scratch_[i] == ~0u) continue;
+    const int e = int(scratch_[i] >> 16), a = int(scratch_[i] & 0xffff);
+    const uint16_t cm = uint16_t(std::min(100.f * points_S[i].norm(), float(kEmpty - 1)));
+    uint16_t& slot = range_cm_[size_t(e - first_row_) * na_ + a];
+    slot = std::min(slot, cm);
   }
 }
 
@@ -72,18 +103,33 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
   int a0, e0;
   image.BinOf(p_S, &a0, &e0);
   bool left = false, right = false, below = false, above = false;
-  const int e_lo = std::max(0, e0 - c.window_elevation_bins);
-  const int e_hi = std::min(image.elevation_bins() - 1, e0 + c.window_elevation_bins);
-  for (int e = e_lo; e <= e_hi; ++e) {
-    for (int da = -c.window_azimuth_bins; da <= c.window_azimuth_bins; ++da) {
-      const float v = image.At(a0 + da, e);
+  // The window: so many bins, and at least window_min_m each side at the point's range (in
+  // azimuth at its distance from the sensor's vertical axis).
+  const float r_xy = std::max(std::sqrt(p_S.x() * p_S.x() + p_S.y() * p_S.y()), 0.1f);
+  const int wa = std::min(
+      kMaxWindowBins, std::max(c.window_azimuth_bins, image.BinsSpanning(c.window_min_m / r_xy)));
+  const int we = std::min(
+      kMaxWindowBins, std::max(c.window_elevation_bins, image.BinsSpanning(c.window_min_m / r)));
+  // From the point's own bin outwards: a static point the scan sees has a return about its
+  // range at or next to its own bin, and is let go after a look or two.
+  const int ne = image.elevation_bins(), na = image.azimuth_bins();
+  for (int k = 0; k <= 2 * we; ++k) {
+    const int de = k & 1 ? -(k + 1) / 2 : k / 2;  // 0, -1, +1, -2, +2, ...
+    const int e = e0 + de;
+    if (e < 0 || e >= ne) continue;
+    for (int j = 0; j <= 2 * wa; ++j) {
+      const int da = j & 1 ? -(j + 1) / 2 : j / 2;
+      int a = a0 + da;
+      if (a < 0) a += na;
+      if (a >= na) a -= na;
+      const float v = image.AtWrapped(a, e);
       if (v == kInf) continue;
       // Any return in the window that does not end clearly beyond p: p may still be there.
       if (v < beyond) return false;
       left |= da < 0;
       right |= da > 0;
-      below |= e < e0;
-      above |= e > e0;
+      below |= de < 0;
+      above |= de > 0;
     }
   }
   return left && right && below && above;
@@ -140,8 +186,9 @@ TransientFilter::TransientFilter(const TransientConfig& config)
 void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
                             const Eigen::Isometry3f& T_world_sensor, float scan_min_range_m,
                             float scan_max_range_m, int64_t frame, PointBuffer* buffer,
-                            DeferredPoints* deferred, std::mutex* aux_mu, WorkerPool* pool) {
-  image_.Fill(points_S, scan_min_range_m, scan_max_range_m);
+                            DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu,
+                            WorkerPool* pool) {
+  image_.Fill(points_S, scan_min_range_m, scan_max_range_m, pool);
   const Eigen::Matrix3f R_SW = T_world_sensor.linear().transpose();
   const Vec3f sensor_W = T_world_sensor.translation();
   const int period = config_.period_frames;
@@ -167,6 +214,8 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   }
   std::vector<bool> keep(n, true);
   int64_t dropped = 0;
+  const bool unmark = map != nullptr && map->placed();
+  const double inv_leaf = unmark ? 1.0 / map->geometry().leaf_m() : 0.0;
   for (size_t i = 0; i < n; ++i) {
     if (!drop_[i]) continue;
     keep[i] = false;
@@ -174,15 +223,105 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     const Vec3f d = points[i] - buffer->origins()[i];
     const float len = d.norm();
     cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
+    if (!unmark) continue;
+    const Int3 g(int(std::floor(points[i].x() * inv_leaf)),
+                 int(std::floor(points[i].y() * inv_leaf)),
+                 int(std::floor(points[i].z() * inv_leaf)));
+    LocalMap::Level& lv = map->level(0);
+    for (int k = 0; k < 27; ++k) {
+      const Int3 v = g + Int3(k / 9 - 1, k / 3 % 3 - 1, k % 3 - 1);
+      if (!map->InBox(0, v)) continue;
+      // Readers load flags atomically under the shared lock (flags_shared): so are these writes.
+      uint8_t* f = &lv.flags(map->Slot(0, v));
+      __atomic_fetch_and(f, uint8_t(~LocalMap::kObserved), __ATOMIC_RELAXED);
+      __atomic_fetch_or(f, uint8_t(LocalMap::kSeenFree), __ATOMIC_RELAXED);
+    }
   }
+  const int64_t departed_seen = unmark && config_.departed_frames > 0
+                                    ? JudgeDeparted(points, frame, *map, seen_through, pool)
+                                    : 0;
   std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
   stats_.judged += int64_t((n + period - 1 - phase) / period);
+  stats_.departed_removed += departed_seen;
   if (dropped > 0) buffer->Filter(keep);
   stats_.buffer_removed += dropped;
   if (deferred) {
-    stats_.deferred_removed +=
-        deferred->RemoveIf(sensor_W, config_.max_range_m, period, phase, seen_through);
+    stats_.deferred_removed += deferred->RemoveIf(sensor_W, config_.max_range_m, 2 * period,
+                                                  int(frame % (2 * period)), seen_through);
   }
+}
+
+int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame,
+                                       const LocalMap& map,
+                                       const std::function<bool(const Vec3f&)>& seen_through,
+                                       WorkerPool* pool) {
+  const double inv_leaf = 1.0 / map.geometry().leaf_m();
+  auto voxel_of = [&](const Vec3f& p) {
+    return Int3(int(std::floor(p.x() * inv_leaf)), int(std::floor(p.y() * inv_leaf)),
+                int(std::floor(p.z() * inv_leaf)));
+  };
+  auto pack = [](const Int3& g) {
+    return (int64_t(g.x() & 0x1fffff) << 42) | (int64_t(g.y() & 0x1fffff) << 21) |
+           int64_t(g.z() & 0x1fffff);
+  };
+  // The buffer's points outside the (new) box: RemoveOutside drops them after this frame's
+  // marking. One per finest voxel is enough to judge the voxel by.
+  const Eigen::Array3f lo = map.min_m().cast<float>().array(),
+                       hi = map.max_m().cast<float>().array();
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (drop_[i]) continue;
+    const Eigen::Array3f q = points[i].array();
+    if ((q >= lo).all() && (q < hi).all()) continue;
+    const int64_t v = pack(voxel_of(points[i]));
+    if (departed_voxels_.insert(v).second) departed_.push_back({points[i], frame, v});
+  }
+  // Forget the oldest: past departed_frames, and beyond the bound.
+  const size_t bound = size_t(config_.max_departed_points);
+  size_t first = 0;
+  while (first < departed_.size() && (departed_[first].frame < frame - config_.departed_frames ||
+                                      departed_.size() - first > bound)) {
+    departed_voxels_.erase(departed_[first].voxel);
+    ++first;
+  }
+  // Judged half as often as the buffer: what the box left behind no longer trains, so only
+  // meshing and the distances wait for the verdict.
+  const int period = 2 * config_.period_frames;
+  const int phase = int(frame % period);
+  const size_t count = departed_.size() - first;
+  departed_drop_.assign(count, 0);
+  constexpr int kPieces = 8;
+  auto piece = [&](int k) {
+    const size_t begin = count * size_t(k) / kPieces, end = count * size_t(k + 1) / kPieces;
+    for (size_t i = begin; i < end; ++i) {
+      const Departed& d = departed_[first + i];
+      if (int(d.voxel % period) == phase) departed_drop_[i] = seen_through(d.p);
+    }
+  };
+  if (pool && count >= 4096) {
+    pool->Run(kPieces, piece);
+  } else {
+    for (int k = 0; k < kPieces; ++k) piece(k);
+  }
+  size_t out = 0;
+  int64_t seen = 0;
+  for (size_t i = 0; i < count; ++i) {
+    const Departed& d = departed_[first + i];
+    if (departed_drop_[i]) {
+      // Its voxel and their neighbours, as the live map's unmarking does; those still in the box
+      // are left to the buffer's own judgement.
+      const Int3 g = voxel_of(d.p);
+      for (int k = 0; k < 27; ++k) {
+        const Int3 v = g + Int3(k / 9 - 1, k / 3 % 3 - 1, k % 3 - 1);
+        if (!map.InBox(0, v)) outside_cells_.push_back(v);
+      }
+      departed_voxels_.erase(d.voxel);
+      ++seen;
+      continue;
+    }
+    departed_[out++] = d;
+  }
+  departed_.resize(out);
+  return seen;
 }
 
 }  // namespace rim

@@ -20,14 +20,19 @@
 #pragma once
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <cstdint>
+#include <functional>
+#include <limits>
 #include <mutex>
 #include <vector>
 
+#include "absl/container/flat_hash_set.h"
 #include "rim/base/types.h"
 #include "rim/base/worker_pool.h"
 #include "rim/config/config.h"
 #include "rim/map/deferred_points.h"
+#include "rim/map/local_map.h"
 #include "rim/train/point_buffer.h"
 #include "rim/train/sampler.h"
 
@@ -38,25 +43,43 @@ class RangeImage {
  public:
   explicit RangeImage(float bin_deg);
 
-  // Bins the points (sensor frame) whose range lies in [min_range_m, max_range_m].
-  void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m);
+  // Bins the points (sensor frame) whose range lies in [min_range_m, max_range_m]; with a pool,
+  // on its threads (the same image either way).
+  void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
+            WorkerPool* pool = nullptr);
 
   int azimuth_bins() const { return na_; }
   int elevation_bins() const { return ne_; }
+  // Bins needed to span an angle (radians; its tangent is fine for small angles), rounded up.
+  int BinsSpanning(float angle_rad) const { return int(std::ceil(angle_rad * inv_bin_rad_)); }
   // The bin of a direction (need not be unit; not zero).
   void BinOf(const Vec3f& d_S, int* azimuth, int* elevation) const;
-  // The nearest range in bin (azimuth, elevation), +inf when it holds no return. Azimuth wraps;
-  // elevation must be in [0, elevation_bins()).
+  // The nearest range in bin (azimuth, elevation), floored to the centimetre; +inf when it holds
+  // no return. Azimuth wraps; elevation must be in [0, elevation_bins()).
   float At(int azimuth, int elevation) const {
     azimuth %= na_;
     if (azimuth < 0) azimuth += na_;
-    return range_[size_t(elevation) * na_ + azimuth];
+    return AtWrapped(azimuth, elevation);
+  }
+  // At() for an azimuth already in [0, azimuth_bins()).
+  float AtWrapped(int azimuth, int elevation) const {
+    const int row = elevation - first_row_;
+    if (unsigned(row) >= unsigned(rows_)) return std::numeric_limits<float>::infinity();
+    const uint16_t cm = range_cm_[size_t(row) * na_ + azimuth];
+    return cm == kEmpty ? std::numeric_limits<float>::infinity() : 0.01f * float(cm);
   }
 
  private:
+  // Only the rows between the scan's lowest and highest return are kept, in centimetres: for a
+  // spinning LiDAR that is 70 rows of 900 bins, 126 KB, which stays in a core's cache while a
+  // frame's points are judged in random directions (a float image of every elevation was 1.6 MB,
+  // and judging waited on memory).
+  static constexpr uint16_t kEmpty = 0xffff;
   float inv_bin_rad_;
   int na_, ne_;
-  std::vector<float> range_;
+  int first_row_ = 0, rows_ = 0;
+  std::vector<uint16_t> range_cm_;
+  std::vector<uint32_t> scratch_;  // per point of the scan: its bin, or ~0 when not binned
 };
 
 // The rule above for a point p_S (sensor frame) at range r = |p_S| in [min_range_m, max_range_m]
@@ -88,6 +111,7 @@ struct TransientStats {
   int64_t buffer_removed = 0;    // buffered returns dropped since creation
   int64_t deferred_removed = 0;  // deferred rays dropped since creation
   int64_t judged = 0;            // points judged since creation
+  int64_t departed_removed = 0;  // departed points seen through since creation
 };
 
 class TransientFilter {
@@ -97,12 +121,21 @@ class TransientFilter {
   // Judges against the scan (points in the sensor frame, the sensor's pose) one in period_frames
   // of the buffer's points and of the deferred rays within max_range_m of the sensor (which ones
   // turns with `frame`), and drops those seen through. Dropped buffer points join the cleared
-  // points. `aux_mu` is held while the buffer and the deferred store change (readers of their
-  // sizes take it); judging the buffer reads it without the lock, so nothing else may write it
-  // meanwhile. With a pool, the buffer's points are judged on its threads.
+  // points, and the finest voxels at the corners of the cell holding each lose their observed
+  // mark in `map` (they read as seen free): meshing skips them at once, before the network has
+  // unlearnt the surface there, and so does a region that leaves the box soon after (its marks
+  // go to the global map with it). `aux_mu` is held while the buffer and the deferred store change
+  // (readers of their sizes take it); judging the buffer reads it without the lock, so nothing else
+  // may write it meanwhile. With a pool, the buffer's points are judged on its threads.
   void Apply(const std::vector<Vec3f>& points_S, const Eigen::Isometry3f& T_world_sensor,
              float scan_min_range_m, float scan_max_range_m, int64_t frame, PointBuffer* buffer,
-             DeferredPoints* deferred, std::mutex* aux_mu, WorkerPool* pool);
+             DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu, WorkerPool* pool);
+
+  // Finest voxels (at the corners of the cells holding departed points seen through) that lie
+  // outside the box now, collected since the last call: the mapper marks them seen free in the
+  // global map (SubmapStore::ClearObserved).
+  std::vector<Int3> TakeOutsideCells() { return std::move(outside_cells_); }
+  size_t departed() const { return departed_.size(); }
 
   const ClearedPoints& cleared() const { return cleared_; }
   ClearedPoints& cleared() { return cleared_; }
@@ -111,11 +144,24 @@ class TransientFilter {
   const RangeImage& image() const { return image_; }
 
  private:
+  // Returns how many departed points were seen through.
+  int64_t JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame, const LocalMap& map,
+                        const std::function<bool(const Vec3f&)>& seen_through, WorkerPool* pool);
+
   TransientConfig config_;
   RangeImage image_;
   ClearedPoints cleared_;
   TransientStats stats_;
   std::vector<uint8_t> drop_;
+  struct Departed {
+    Vec3f p;
+    int64_t frame;
+    int64_t voxel;  // packed finest voxel, one departed point per voxel
+  };
+  std::vector<Departed> departed_;  // in the order they left
+  std::vector<uint8_t> departed_drop_;
+  absl::flat_hash_set<int64_t> departed_voxels_;
+  std::vector<Int3> outside_cells_;
 };
 
 }  // namespace rim
