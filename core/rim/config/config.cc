@@ -323,6 +323,10 @@ absl::StatusOr<MapperConfig> MakePreset(const std::string& name) {
     c.sampler.outside_rays = true;
     c.buffer.outlier_removal = true;
     c.buffer.max_range_m = 40.f;
+    // Real odometry: a wall seen again from a pose some decimetres off reads as seen through at
+    // 0.3 m (BENCHMARK.md, "Moving things"). Twice the margin keeps walls and still drops people.
+    c.transient.margin_m = 0.6f;
+    c.transient.margin_per_m = 0.02f;
   } else {
     return absl::InvalidArgumentError(absl::StrCat("unknown preset '", name,
                                                    "'; known presets: maicity, ",
