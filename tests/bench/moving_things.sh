@@ -8,7 +8,8 @@
 # Usage: tests/bench/moving_things.sh BUILD_DIR OUT_DIR [PRESET] [SEED ...]
 #   defaults: PRESET maicity; seeds 301 302 303. Seed 302 sets facades back 4-10 m, seed 303 drives
 #   0.7 m a frame: no seed here was looked at while the filter was tuned (that was seed 72).
-# Environment: FRAMES (default 100), CROSSERS (6), MOVERS (3), NOISE (0.03).
+# Environment: FRAMES (default 100), CROSSERS (6), MOVERS (3), NOISE (0.03); KINDS ("moving
+# static") and FILTERS ("true false") choose the runs; ROWS_FILE names where rows are appended.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 OUT="$2"
@@ -18,8 +19,8 @@ SEEDS=("$@")
 [ ${#SEEDS[@]} -gt 0 ] || SEEDS=(301 302 303)
 FRAMES="${FRAMES:-100}"
 mkdir -p "$OUT"
-ROWS="$OUT/rows.jsonl"
-: > "$ROWS"
+ROWS="${ROWS_FILE:-$OUT/rows.jsonl}"
+[ -n "${ROWS_FILE:-}" ] || : > "$ROWS"
 
 city_options() {  # SEED -> extra rim_sim options that make the seed's city differ
   case "$1" in
@@ -31,13 +32,13 @@ city_options() {  # SEED -> extra rim_sim options that make the seed's city diff
 
 for seed in "${SEEDS[@]}"; do
   read -r -a extra <<< "$(city_options "$seed")"
-  for kind in moving static; do
+  for kind in ${KINDS:-moving static}; do
     city="$OUT/city_${seed}_$kind"
     movers=()
     [ "$kind" = moving ] && movers=(--crossers "${CROSSERS:-6}" --movers "${MOVERS:-3}")
     [ -d "$city" ] || "$BUILD/clients/rim_sim" --scene city --out "$city" --frames "$FRAMES" \
       --seed "$seed" --noise "${NOISE:-0.03}" "${movers[@]}" ${extra[@]+"${extra[@]}"} > /dev/null
-    for filter in true false; do
+    for filter in ${FILTERS:-true false}; do
       run="$OUT/map_${seed}_${kind}_${PRESET}_$filter"
       "$BUILD/clients/rim_map" "$city" --preset "$PRESET" --out "$run" \
         --set transient.enabled=$filter > "$run.log" 2>&1

@@ -127,10 +127,10 @@ struct TransientConfig {
   float min_range_m = 1.f;
   float max_range_m = 40.f;
   // Each frame judges one in this many of the buffered and deferred points (in turn).
-  int period_frames = 2;
+  int period_frames = 4;
   // Free-space samples where dropped returns stood: how many per iteration, their label, for how
   // many frames a dropped return is cleared, and at most how many are held.
-  int clear_samples_per_iteration = 256;
+  int clear_samples_per_iteration = 128;
   float clear_label_m = 0.15f;
   int clear_frames = 10;
   int max_cleared_points = 50000;
