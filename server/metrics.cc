@@ -61,37 +61,36 @@ uint64_t ResidentBytes() {
   return n == 2 ? uint64_t(resident) * uint64_t(sysconf(_SC_PAGESIZE)) : 0;
 }
 
-prometheus::MetricFamily GaugeFamily(const std::string& name, const std::string& help) {
+// A family read from the sessions when Prometheus scrapes: gauges, or counters whose values the
+// sessions keep.
+prometheus::MetricFamily CollectedFamily(const std::string& name, const std::string& help,
+                                         prometheus::MetricType type) {
   prometheus::MetricFamily f;
   f.name = name;
   f.help = help;
-  f.type = prometheus::MetricType::Gauge;
+  f.type = type;
   return f;
+}
+
+prometheus::MetricFamily GaugeFamily(const std::string& name, const std::string& help) {
+  return CollectedFamily(name, help, prometheus::MetricType::Gauge);
+}
+
+void AddValue(prometheus::MetricFamily* f, std::vector<prometheus::ClientMetric::Label> labels,
+              double value) {
+  prometheus::ClientMetric m;
+  m.label = std::move(labels);
+  if (f->type == prometheus::MetricType::Counter) {
+    m.counter.value = value;
+  } else {
+    m.gauge.value = value;
+  }
+  f->metric.push_back(std::move(m));
 }
 
 void AddGauge(prometheus::MetricFamily* f, std::vector<prometheus::ClientMetric::Label> labels,
               double value) {
-  prometheus::ClientMetric m;
-  m.label = std::move(labels);
-  m.gauge.value = value;
-  f->metric.push_back(std::move(m));
-}
-
-// A counter whose value the session keeps (read when Prometheus scrapes).
-prometheus::MetricFamily CounterFamily(const std::string& name, const std::string& help) {
-  prometheus::MetricFamily f;
-  f.name = name;
-  f.help = help;
-  f.type = prometheus::MetricType::Counter;
-  return f;
-}
-
-void AddCounter(prometheus::MetricFamily* f, std::vector<prometheus::ClientMetric::Label> labels,
-                double value) {
-  prometheus::ClientMetric m;
-  m.label = std::move(labels);
-  m.counter.value = value;
-  f->metric.push_back(std::move(m));
+  AddValue(f, std::move(labels), value);
 }
 
 }  // namespace
@@ -241,9 +240,10 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
                               "Host memory held by one session's maps and buffers");
     auto checkpoint = GaugeFamily("rim_checkpoint_bytes", "Size of the session's last checkpoint");
     auto wal = GaugeFamily("rim_wal_bytes", "Size of the session's write-ahead log on disk");
-    auto transient = CounterFamily(
+    auto transient = CollectedFamily(
         "rim_transient_points_removed_total",
-        "Returns dropped because later rays passed clearly through them (moving things), by store");
+        "Returns dropped because later rays passed clearly through them (moving things), by store",
+        prometheus::MetricType::Counter);
     double sessions = 0;
     if (sessions_ != nullptr) {
       for (const auto& session : sessions_->List()) {
@@ -262,9 +262,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&memory, id, double(SessionHostBytes(*session)));
         AddGauge(&checkpoint, id, double(s.last_checkpoint_bytes));
         AddGauge(&wal, id, double(s.wal_bytes));
-        AddCounter(&transient, {id[0], {"store", "buffer"}}, double(m.transient_buffer_removed));
-        AddCounter(&transient, {id[0], {"store", "deferred"}},
-                   double(m.transient_deferred_removed));
+        AddValue(&transient, {id[0], {"store", "buffer"}}, double(m.transient_buffer_removed));
+        AddValue(&transient, {id[0], {"store", "deferred"}}, double(m.transient_deferred_removed));
       }
     }
     AddGauge(&active, {}, sessions);
@@ -276,7 +275,7 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
     AddGauge(&device, {}, 0);
-    return {build,  active,     queue, lag,       iterations, rays, loss,   submaps,
+    return {build,  active,     queue, lag,       iterations, rays, loss,  submaps,
             memory, checkpoint, wal,   transient, budget,     rss,  device};
   }
 

@@ -137,12 +137,13 @@ absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outs
     // Drawn only while there is something to clear, so that a map without moving things takes
     // the same batches as before.
     const int configured = config_.sampler.rays_per_iteration;
-    const int n = rays > 0 && rays != configured
-                      ? std::max(1, int(int64_t(tr.clear_samples_per_iteration) * rays / configured))
-                      : tr.clear_samples_per_iteration;
+    const int n =
+        rays > 0 && rays != configured
+            ? std::max(1, int(int64_t(tr.clear_samples_per_iteration) * rays / configured))
+            : tr.clear_samples_per_iteration;
     FastRng rng(sampler_.rng()());
-    cleared_->Sample(n, 3.f * config_.train.sigma_m, tr.clear_label_m,
-                     map_->min_m().cast<float>(), map_->max_m().cast<float>(), &rng, &batch_);
+    cleared_->Sample(n, 3.f * config_.train.sigma_m, tr.clear_label_m, map_->min_m().cast<float>(),
+                     map_->max_m().cast<float>(), &rng, &batch_);
   }
   if (timing) timing->sample_s += Now() - t0;
   return PrepareBatch(train_decoder, timing);

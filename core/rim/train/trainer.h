@@ -109,7 +109,7 @@ class Trainer {
   };
   std::vector<StageFlag> stage_flags_;
   bool grad_ready_ = false;
-  bool prepared_ = false;                        // Prepare left a batch for Apply
+  bool prepared_ = false;  // Prepare left a batch for Apply
   const ClearedPoints* cleared_ = nullptr;
   std::unique_ptr<ReferenceTrainer> reference_;  // train.step = "reference" only
   WorkerPool pool_;  // last: its threads stop before the buffers they use go away
