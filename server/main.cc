@@ -24,14 +24,14 @@
 
 #include "absl/cleanup/cleanup.h"
 #include "rim/base/version.h"
-#include "server/compute_scheduler.h"
-#include "server/http_api.h"
-#include "server/meshing_budget.h"
-#include "server/metrics.h"
-#include "server/security.h"
-#include "server/server_config.h"
-#include "server/service.h"
-#include "server/session_manager.h"
+#include "server/auth/security.h"
+#include "server/config/server_config.h"
+#include "server/http/http_api.h"
+#include "server/metrics/metrics.h"
+#include "server/service/service.h"
+#include "server/session/compute_scheduler.h"
+#include "server/session/meshing_budget.h"
+#include "server/session/session_manager.h"
 #include "server/warmup.h"
 
 namespace {

@@ -9,8 +9,8 @@
 #include <vector>
 
 #include "bench/bench_common.h"
+#include "proto/codec/mesh_codec.h"
 #include "rim/mesh/mesher.h"
-#include "server/mesh_codec.h"
 
 namespace rim::bench {
 namespace {
@@ -192,7 +192,7 @@ void BM_MeshUpdate(benchmark::State& state) {
       encode_clock.Start();
       const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
       const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-      CheckOk(server::EncodeTileDraco(*m, lo, hi).status(), "EncodeTileDraco");
+      CheckOk(codec::EncodeTileDraco(*m, lo, hi).status(), "EncodeTileDraco");
       encode_clock.Stop();
       newest = std::max(newest, tile.version);
       ++tiles;
@@ -228,7 +228,7 @@ void BM_DracoEncodeTile(benchmark::State& state) {
   const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
   size_t bytes = 0;
   for (auto _ : state) {
-    absl::StatusOr<std::string> encoded = server::EncodeTileDraco(*mesh, lo, hi);
+    absl::StatusOr<std::string> encoded = codec::EncodeTileDraco(*mesh, lo, hi);
     CheckOk(encoded.status(), "EncodeTileDraco");
     bytes = encoded->size();
   }

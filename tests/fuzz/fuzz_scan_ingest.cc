@@ -7,7 +7,7 @@
 #include <mutex>
 
 #include "fuzz_session.h"
-#include "server/scan_convert.h"
+#include "server/service/scan_convert.h"
 
 namespace {
 

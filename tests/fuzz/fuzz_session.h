@@ -11,8 +11,8 @@
 #include <vector>
 
 #include "fuzz_util.h"
-#include "server/service.h"
-#include "server/session_manager.h"
+#include "server/service/service.h"
+#include "server/session/session_manager.h"
 #include "support/small_session.h"
 
 namespace rim::fuzz {

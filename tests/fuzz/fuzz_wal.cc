@@ -16,7 +16,7 @@
 
 #include "fuzz_session.h"
 #include "rim/base/binary_io.h"
-#include "server/wal_record.h"
+#include "server/wal/wal_record.h"
 
 namespace {
 

@@ -14,7 +14,7 @@
 #include "rim/io/pcd.h"
 #include "rim/io/ply_points.h"
 #include "rim/io/png_io.h"
-#include "server/wal_record.h"
+#include "server/wal/wal_record.h"
 
 namespace {
 

@@ -15,7 +15,7 @@
 #include "client/wire.h"
 #include "gmock/gmock.h"
 #include "rim/v1/rim.grpc.pb.h"
-#include "server/auth.h"
+#include "server/auth/auth.h"
 #include "support/server_process.h"
 #include "support/small_session.h"
 #include "support/subprocess.h"

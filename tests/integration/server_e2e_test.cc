@@ -20,8 +20,8 @@
 #include <thread>
 #include <vector>
 
+#include "proto/codec/mesh_codec.h"
 #include "rim/v1/rim.grpc.pb.h"
-#include "server/mesh_codec.h"
 #include "support/analytic_scene.h"
 #include "support/temp_dir.h"
 
@@ -377,7 +377,7 @@ TEST_F(ServerE2eTest, MeshTilesDecode) {
   size_t faces = 0;
   while (reader->Read(&tile)) {
     ++tiles;
-    auto mesh = DecodeTileDraco(tile.draco());
+    auto mesh = codec::DecodeTileDraco(tile.draco());
     ASSERT_TRUE(mesh.ok()) << mesh.status();
     faces += mesh->faces.size();
     EXPECT_GT(tile.version(), 0u);
@@ -423,7 +423,7 @@ TEST_F(ServerE2eTest, WatchMeshTilesPushesTilesAsTrainingChangesThem) {
   rim::v1::MeshTile tile;
   ASSERT_TRUE(reader->Read(&tile));
   EXPECT_GT(tile.version(), since);
-  auto mesh = DecodeTileDraco(tile.draco());
+  auto mesh = codec::DecodeTileDraco(tile.draco());
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   EXPECT_EQ(mesh->faces.size(), tile.face_count());
   streamer.join();

@@ -12,7 +12,7 @@
 
 #include "client/client.h"
 #include "gmock/gmock.h"
-#include "server/auth.h"
+#include "server/auth/auth.h"
 #include "support/server_process.h"
 #include "support/subprocess.h"
 #include "support/temp_dir.h"

@@ -7,7 +7,7 @@
 #include "client/tiles.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/mesh_codec.h"
+#include "proto/codec/mesh_codec.h"
 
 namespace rim {
 namespace {
@@ -40,7 +40,7 @@ Mesh HeightField(int c0, int c1) {
 }
 
 DecodedTile EncodeAndDecode(const Mesh& mesh, int key_x, double x_min, double x_max) {
-  auto draco = server::EncodeTileDraco(mesh, {x_min, kY0 - 0.1, 0.0}, {x_max, kY0 + 0.9, 0.6});
+  auto draco = codec::EncodeTileDraco(mesh, {x_min, kY0 - 0.1, 0.0}, {x_max, kY0 + 0.9, 0.6});
   EXPECT_TRUE(draco.ok()) << draco.status();
   rim::v1::MeshTile tile;
   tile.set_key_x(key_x);

@@ -8,7 +8,7 @@
 #include "client/wire.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/status_mapping.h"
+#include "server/service/status_mapping.h"
 
 namespace rim {
 namespace {

@@ -9,9 +9,9 @@
 
 #include "absl/strings/ascii.h"
 #include "gmock/gmock.h"
-#include "server/auth.h"
-#include "server/security.h"
-#include "server/server_config.h"
+#include "server/auth/auth.h"
+#include "server/auth/security.h"
+#include "server/config/server_config.h"
 
 namespace rim::server {
 namespace {

@@ -1,4 +1,4 @@
-// ComputeScheduler (server/compute_scheduler.h): never more frames training than slots, and
+// ComputeScheduler (server/session/compute_scheduler.h): never more frames training than slots, and
 // slots handed out in the order they were asked for.
 #include <atomic>
 #include <chrono>
@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "server/compute_scheduler.h"
+#include "server/session/compute_scheduler.h"
 
 namespace rim::server {
 namespace {

@@ -1,12 +1,12 @@
-// The watchers' meshing budget (server/meshing_budget.h): a token bucket in CPU-seconds, driven
-// here by explicit time points so that the arithmetic is checked exactly, not by timing.
+// The watchers' meshing budget (server/session/meshing_budget.h): a token bucket in CPU-seconds,
+// driven here by explicit time points so that the arithmetic is checked exactly, not by timing.
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <limits>
 #include <thread>
 
-#include "server/meshing_budget.h"
+#include "server/session/meshing_budget.h"
 
 namespace rim::server {
 namespace {

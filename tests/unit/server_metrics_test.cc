@@ -1,5 +1,5 @@
-// ServerMetrics (server/metrics.h): the exposition text carries what the hooks were told, under
-// the names of docs/metrics.md, with the labels it documents.
+// ServerMetrics (server/metrics/metrics.h): the exposition text carries what the hooks were told,
+// under the names of docs/metrics.md, with the labels it documents.
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
@@ -9,7 +9,7 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/metrics.h"
+#include "server/metrics/metrics.h"
 
 namespace rim::server {
 namespace {

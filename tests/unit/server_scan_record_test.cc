@@ -5,7 +5,7 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/scan_record.h"
+#include "server/wal/scan_record.h"
 
 namespace rim::server {
 namespace {

@@ -1,8 +1,8 @@
-// One writer per session folder: the lease (server/session_lease.h) and the session manager's use
-// of it when replicas share a data dir. A live holder keeps others out and is named to them; a
-// dead one's lease is free at once; a forged or stale lease file counts for nothing; a holder
-// whose lease was replaced is fenced off; a replica opens (takes over) a session that no live
-// replica holds, and knows the highest scan sequence it had accepted.
+// One writer per session folder: the lease (server/session/session_lease.h) and the session
+// manager's use of it when replicas share a data dir. A live holder keeps others out and is named
+// to them; a dead one's lease is free at once; a forged or stale lease file counts for nothing; a
+// holder whose lease was replaced is fenced off; a replica opens (takes over) a session that no
+// live replica holds, and knows the highest scan sequence it had accepted.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -12,8 +12,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "server/session_lease.h"
-#include "server/session_manager.h"
+#include "server/session/session_lease.h"
+#include "server/session/session_manager.h"
 #include "support/small_session.h"
 #include "support/temp_dir.h"
 

@@ -11,10 +11,10 @@
 #include <thread>
 #include <vector>
 
-#include "server/latest_queue.h"
-#include "server/session.h"
-#include "server/session_manager.h"
-#include "server/tile_cache.h"
+#include "server/service/latest_queue.h"
+#include "server/session/session.h"
+#include "server/session/session_manager.h"
+#include "server/session/tile_cache.h"
 #include "support/analytic_scene.h"
 #include "support/small_session.h"
 #include "support/temp_dir.h"

@@ -2,7 +2,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
-#include "server/status_mapping.h"
+#include "server/service/status_mapping.h"
 
 namespace rim::server {
 namespace {

@@ -5,8 +5,8 @@
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/wal.h"
-#include "server/wal_test_util.h"
+#include "server/wal/wal.h"
+#include "support/wal_test_util.h"
 
 namespace rim::server::wal_testing {
 namespace {

@@ -21,7 +21,7 @@
 namespace rim {
 namespace {
 
-// Sent on StreamScans when the stream is paced at a sensor's rate (server/service.h).
+// Sent on StreamScans when the stream is paced at a sensor's rate (server/service/service.h).
 constexpr char kRealTimeHeader[] = "x-rim-real-time";
 
 // How a broken stream ends: the server or the connection gone (UNAVAILABLE), or a proxy that

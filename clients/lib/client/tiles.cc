@@ -5,8 +5,8 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
+#include "proto/codec/mesh_codec.h"
 #include "rim/io/mesh_io.h"
-#include "server/mesh_codec.h"
 
 namespace rim {
 namespace {
@@ -31,7 +31,7 @@ absl::StatusOr<DecodedTile> DecodeTile(const rim::v1::MeshTile& tile) {
   out.draco = tile.draco();
   const std::string name =
       absl::StrCat("tile (", tile.key_x(), ",", tile.key_y(), ",", tile.key_z(), ")");
-  auto mesh = server::DecodeTileDraco(out.draco);
+  auto mesh = codec::DecodeTileDraco(out.draco);
   if (!mesh.ok()) {
     return absl::DataLossError(
         absl::StrCat(name, " version ", tile.version(), ": ", mesh.status().message()));

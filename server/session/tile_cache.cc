@@ -1,0 +1,62 @@
+#include "server/session/tile_cache.h"
+
+#include <array>
+#include <chrono>
+
+#include "absl/strings/str_cat.h"
+#include "proto/codec/mesh_codec.h"
+#include "rim/mesh/mesher.h"
+
+namespace rim::server {
+
+absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& mapper,
+                                                                  const TileInfo& tile) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = tiles_.find(tile.key);
+    if (it != tiles_.end() && it->second->version >= tile.version) {
+      ++hits_;
+      return it->second;
+    }
+    ++misses_;
+  }
+  // Meshing runs outside the cache lock: other tiles (and other callers) are not held up.
+  const auto start = std::chrono::steady_clock::now();
+  MeshUpdateStats stats;
+  auto mesh = mapper.MeshTile(tile.key, &stats);
+  if (!mesh.ok()) return mesh.status();
+  const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
+  const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
+  auto draco = codec::EncodeTileDraco(*mesh, lo, hi);
+  if (!draco.ok())
+    return absl::InternalError(absl::StrCat("encoding tile (", tile.key.x(), ",", tile.key.y(), ",",
+                                            tile.key.z(), "): ", draco.status().message()));
+  auto encoded = std::make_shared<EncodedTile>();
+  encoded->version = tile.version;
+  encoded->draco = std::move(*draco);
+  encoded->vertex_count = uint32_t(mesh->vertices.size());
+  // The faces a decoder gets back: the encoder leaves out those with a repeated vertex.
+  encoded->face_count = 0;
+  for (const auto& f : mesh->faces)
+    encoded->face_count += f[0] != f[1] && f[1] != f[2] && f[0] != f[2];
+  if (on_encoded_)
+    on_encoded_(encoded->draco.size(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+                stats.blocks_remeshed);
+  std::lock_guard<std::mutex> lock(mu_);
+  auto& slot = tiles_[tile.key];
+  if (!slot || slot->version <= encoded->version) slot = encoded;
+  return std::shared_ptr<const EncodedTile>(slot);
+}
+
+uint64_t TileCache::hits() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return hits_;
+}
+
+uint64_t TileCache::misses() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return misses_;
+}
+
+}  // namespace rim::server
