@@ -19,6 +19,9 @@ PACKAGES=(
   libssl-dev
   # tests and benchmarks; clang and its libFuzzer runtime for tests/fuzz (RIM_FUZZ=ON)
   libgtest-dev libgmock-dev libbenchmark-dev prometheus python3-yaml clang libclang-rt-14-dev
+  # the TSDF reference mapper that benchmarks compare with (tests/bench/tsdf): OpenVDB, and the
+  # Boost headers its headers and CMake module need but its package does not pull in
+  libopenvdb-dev libboost-iostreams-dev
   # python client: installed with pip into a venv, offline (setuptools, wheel from Debian)
   python3 python3-numpy python3-grpcio python3-protobuf python3-venv python3-pip
   python3-setuptools python3-wheel
