@@ -103,6 +103,34 @@ struct BuildingOptions {
   double height_min = 4.0, height_max = 25.0;
 };
 
+// What the streets hold besides the buildings' main boxes, each a share in [0, 1]. The defaults
+// are a realistic mix; 0 leaves a feature out (and `yawed` = 0.25 with the others at 0 gives the
+// city rim_sim made before these options existed, bit for bit).
+struct CityFeatures {
+  // Share of each kerb (between the intersections' clear zones) taken by rows of cars parked
+  // right at the kerb, their sides 3-15 cm from it, bumper to bumper 0.5-3 m apart: sedans,
+  // SUVs and vans, a body box with a cabin box on it (hood and boot lower than the cabin). The
+  // rest of the kerb keeps the scattered parked cars.
+  double parked_cars = 0.5;
+  // Share of buildings with balconies: slabs 0.15-0.2 m thick, 1-1.5 m deep and 2-4 m wide on the
+  // street facade at every floor from about 3 m up (they may overhang the frontage by up to
+  // kMaxBalconyDepth, never lower than kLowestBalcony).
+  double balconies = 0.4;
+  // Share of buildings with an annex: a lower box (2.5-4.5 m tall) on the street side or at the
+  // street corner of the building (shop front, porch, entrance), behind the street frontage.
+  double annexes = 0.3;
+  // Share of buildings yawed off the street by up to +-35 degrees (the rest by up to +-4).
+  double yawed = 0.35;
+  // Share of street trees with a broad, low crown: a flat-bottomed disc 2.5-3.5 m up, radius 2-4 m
+  // where there is room (it keeps 0.3 m from buildings, balconies and street lights, and its edge
+  // stays 2 m or more from the street centre line, past the sensor's path), with a conical top; it
+  // overhangs the sidewalk and the parking lane and hides part of the facades behind it.
+  double canopies = 0.5;
+};
+
+inline constexpr double kMaxBalconyDepth = 1.5;
+inline constexpr double kLowestBalcony = 2.8;  // the underside of the lowest balcony, at least
+
 struct CityOptions {
   uint64_t seed = 1;
   // Pedestrians, spread evenly at random over the sidewalks all round the drive loop (so that a
@@ -117,6 +145,7 @@ struct CityOptions {
   int frames = 100;
   double step = 1.0;
   BuildingOptions buildings;
+  CityFeatures features;
 };
 
 inline constexpr double kMaxBuildingSetback = 20.0;
@@ -125,7 +154,8 @@ inline constexpr double kMinBuildingHeight = 1.0, kMaxBuildingHeight = 100.0;
 // InvalidArgument naming the field unless walkers, crossers, movers and frames are >= 0, step is
 // finite and > 0, and the building ranges are finite with
 // 0 <= setback_min <= setback_max <= kMaxBuildingSetback and
-// kMinBuildingHeight <= height_min <= height_max <= kMaxBuildingHeight.
+// kMinBuildingHeight <= height_min <= height_max <= kMaxBuildingHeight, and every share in
+// `features` is finite and in [0, 1].
 absl::Status ValidateCityOptions(const CityOptions& options);
 
 struct City {
@@ -141,10 +171,10 @@ struct City {
 };
 
 // Deterministic for given options, which must pass ValidateCityOptions. The static scene depends
-// on the seed and the building ranges only, so ground truth is the same whether or not moving
-// things are added; each kind of them has a random stream of its own, so adding one kind leaves
-// the others as they were. The building ranges change the values drawn for each building, not how
-// many are drawn. No crosser or mover ever meets a static solid or the sensor.
+// on the seed, the building ranges and the features only, so ground truth is the same whether or
+// not moving things are added; each kind of them has a random stream of its own, so adding one kind
+// leaves the others as they were. The building ranges change the values drawn for each building,
+// not how many are drawn. No crosser or mover ever meets a static solid or the sensor.
 City GenerateCity(const CityOptions& options);
 
 // World-from-LiDAR poses (x forward, y left, z up) of `frames` frames, `step` metres apart along

@@ -39,6 +39,7 @@ CityFrames::CityFrames(const CityFrameOptions& options) : state_(std::make_uniqu
   city_options.frames = options.frames;
   city_options.step = options.step;
   city_options.buildings = options.buildings;
+  city_options.features = options.features;
   s.city = GenerateCity(city_options);
   s.poses = CityTrajectory(s.city, options.frames, options.step, kSensorHeight);
   s.lidar.columns = options.columns;

@@ -23,6 +23,7 @@ struct CityFrameOptions {
   int movers = 0;             // cars driving the opposite lane
   int threads = 0;            // ray-casting threads; 0: all hardware threads
   BuildingOptions buildings;  // set-backs and heights (the defaults are rim_sim's)
+  CityFeatures features;      // parked cars, balconies, ... (the defaults are rim_sim's)
 };
 
 class CityFrames {

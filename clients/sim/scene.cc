@@ -227,6 +227,125 @@ bool Overlaps2d(const Aabb& b, const Vec2& lo, const Vec2& hi) {
   return b.max.x() >= lo.x() && b.min.x() <= hi.x() && b.max.y() >= lo.y() && b.min.y() <= hi.y();
 }
 
+// The interval of the line p + s u (u unit, horizontal) that lies strictly inside the convex
+// counter-clockwise ring (by more than 1e-9 m), or false where it has (almost) none: a line along
+// one of the ring's edges has none.
+bool LineInside(const std::vector<Vec2>& ring, const Vec2& p, const Vec2& u, double* s0,
+                double* s1) {
+  double lo = -kInf, hi = kInf;
+  for (size_t i = 0, m = ring.size(); i < m; ++i) {
+    const Vec2 e = ring[(i + 1) % m] - ring[i];
+    const double len = e.norm();
+    if (len < 1e-12) continue;
+    // Signed distance to the edge's line, positive inside: f0 + s * f1.
+    const double f0 = (e.x() * (p.y() - ring[i].y()) - e.y() * (p.x() - ring[i].x())) / len;
+    const double f1 = (e.x() * u.y() - e.y() * u.x()) / len;
+    constexpr double kStrict = 1e-9;
+    if (std::abs(f1) < 1e-12) {
+      if (f0 <= kStrict) return false;
+      continue;
+    }
+    const double s = (kStrict - f0) / f1;
+    if (f1 > 0) {
+      lo = std::max(lo, s);
+    } else {
+      hi = std::min(hi, s);
+    }
+  }
+  *s0 = lo;
+  *s1 = hi;
+  return hi - lo > 1e-9;
+}
+
+// Emits a face that does not look straight up, with the parts of it that lie inside other solids
+// cut out where that is exact and cheap: from a face that looks straight down, the footprints of
+// the solids it crosses (a balcony slab's underside inside its building); from an upright face,
+// its sections through upright prisms (boxes and cylinders) that it crosses (a facade behind a
+// balcony or an annex, the ends of the slab inside the building). Other faces go out whole.
+template <typename Emit>
+void CutHiddenParts(const Polygon& poly, int owner, const std::vector<Primitive>& prims,
+                    const std::vector<Aabb>& bounds, const GridIndex& index,
+                    const TessellationOptions& tess, Emit&& emit) {
+  const std::vector<Vec3>& c = poly.corners;
+  Vec3 normal = Vec3::Zero();
+  for (size_t k = 1; k + 1 < c.size(); ++k) normal += (c[k] - c[0]).cross(c[k + 1] - c[0]);
+  const double area2 = normal.norm();
+  if (c.size() < 3 || area2 < 1e-18) {
+    emit(c, owner);
+    return;
+  }
+  normal /= area2;
+  const bool down = normal.z() < -1.0 + 1e-12;
+  const bool upright = std::abs(normal.z()) < 1e-12;
+  if (!down && !upright) {
+    emit(c, owner);
+    return;
+  }
+  Vec3 lo3 = c[0], hi3 = c[0];
+  for (const Vec3& p : c) {
+    lo3 = lo3.cwiseMin(p);
+    hi3 = hi3.cwiseMax(p);
+  }
+  const Vec2 lo = lo3.head<2>(), hi = hi3.head<2>();
+  std::vector<int> cutters;
+  index.ForEachInRect(lo, hi, [&](int i) {
+    if (i == owner || !Overlaps2d(bounds[i], lo, hi)) return;
+    if (down ? (bounds[i].min.z() < lo3.z() && bounds[i].max.z() > lo3.z())
+             : (bounds[i].min.z() < hi3.z() && bounds[i].max.z() > lo3.z() &&
+                (std::holds_alternative<Box>(prims[i].shape) ||
+                 std::holds_alternative<Cylinder>(prims[i].shape)))) {
+      cutters.push_back(i);
+    }
+  });
+  if (cutters.empty()) {
+    emit(c, owner);
+    return;
+  }
+  std::sort(cutters.begin(), cutters.end());
+  // The face in 2-D, counter-clockwise: (x, y) seen from below for a downward face, (s, z) with
+  // s along u = z x normal for an upright one (seen from outside).
+  const Vec2 u = Vec2(-normal.y(), normal.x()).normalized();
+  const Vec2 origin = c[0].head<2>();
+  auto to2d = [&](const Vec3& p) {
+    return down ? Vec2(p.x(), -p.y()) : Vec2((p.head<2>() - origin).dot(u), p.z());
+  };
+  auto to3d = [&](const Vec2& q) {
+    return down ? Vec3(q.x(), -q.y(), c[0].z())
+                : Vec3(origin.x() + q.x() * u.x(), origin.y() + q.x() * u.y(), q.y());
+  };
+  std::vector<std::vector<Vec2>> pieces(1);
+  for (const Vec3& p : c) pieces[0].push_back(to2d(p));
+  const bool flip = PolygonArea(pieces[0]) < 0;  // never, but for rounding
+  if (flip) std::reverse(pieces[0].begin(), pieces[0].end());
+  for (int i : cutters) {
+    std::vector<Vec2> hole;
+    if (down) {
+      for (const Vec2& p : Footprint(prims[i].shape, lo3.z(), tess))
+        hole.emplace_back(p.x(), -p.y());
+      std::reverse(hole.begin(), hole.end());
+    } else {
+      const double z_mid = 0.5 * (bounds[i].min.z() + bounds[i].max.z());
+      double s0, s1;
+      if (!LineInside(Footprint(prims[i].shape, z_mid, tess), origin, u, &s0, &s1)) continue;
+      const double z0 = bounds[i].min.z(), z1 = bounds[i].max.z();
+      hole = {Vec2(s0, z0), Vec2(s1, z0), Vec2(s1, z1), Vec2(s0, z1)};
+    }
+    if (hole.size() < 3) continue;
+    std::vector<std::vector<Vec2>> next;
+    for (const auto& piece : pieces) {
+      for (auto& part : SubtractConvex(piece, hole)) next.push_back(std::move(part));
+    }
+    pieces = std::move(next);
+    if (pieces.empty()) return;
+  }
+  for (const auto& piece : pieces) {
+    std::vector<Vec3> out;
+    for (const Vec2& q : piece) out.push_back(to3d(q));
+    if (flip) std::reverse(out.begin(), out.end());
+    emit(out, owner);
+  }
+}
+
 }  // namespace
 
 rim::Mesh BuildGroundTruthMesh(const Scene& scene, const GroundTruthOptions& options) {
@@ -234,13 +353,28 @@ rim::Mesh BuildGroundTruthMesh(const Scene& scene, const GroundTruthOptions& opt
   TessellationOptions solid_tess = tess;
   if (scene.has_ground) solid_tess.floor_z = std::max(tess.floor_z, scene.ground_z);
 
-  // Solids that touch the region, re-indexed.
+  // Solids that touch the region, re-indexed, then those that reach into the bounds of these
+  // (a car's cabin beyond the region on a body inside it): these hide parts of the first but are
+  // not emitted themselves.
   Scene kept;
   kept.has_ground = scene.has_ground;
   kept.ground_z = scene.ground_z;
+  Vec2 reach_min = options.region_min, reach_max = options.region_max;
   for (const Primitive& p : scene.primitives) {
     const Aabb b = Bounds(p.shape);
     if (!b.IsFinite() || Overlaps2d(b, options.region_min, options.region_max)) {
+      kept.primitives.push_back(p);
+      if (b.IsFinite()) {
+        reach_min = reach_min.cwiseMin(b.min.head<2>());
+        reach_max = reach_max.cwiseMax(b.max.head<2>());
+      }
+    }
+  }
+  const size_t emitted = kept.primitives.size();
+  for (const Primitive& p : scene.primitives) {
+    const Aabb b = Bounds(p.shape);
+    if (b.IsFinite() && !Overlaps2d(b, options.region_min, options.region_max) &&
+        Overlaps2d(b, reach_min, reach_max)) {
       kept.primitives.push_back(p);
     }
   }
@@ -252,7 +386,7 @@ rim::Mesh BuildGroundTruthMesh(const Scene& scene, const GroundTruthOptions& opt
   // Planar faces with their owners.
   std::vector<std::pair<Polygon, int>> faces;
   std::vector<Polygon> scratch;
-  for (size_t i = 0; i < prims.size(); ++i) {
+  for (size_t i = 0; i < emitted; ++i) {
     scratch.clear();
     Tessellate(prims[i].shape, solid_tess, &scratch);
     for (Polygon& p : scratch) faces.emplace_back(std::move(p), static_cast<int>(i));
@@ -282,7 +416,7 @@ rim::Mesh BuildGroundTruthMesh(const Scene& scene, const GroundTruthOptions& opt
   };
   for (const auto& [poly, owner] : faces) {
     if (!poly.faces_up) {
-      emit_fan(poly.corners, owner);
+      CutHiddenParts(poly, owner, prims, bounds, index, tess, emit_fan);
       continue;
     }
     const double z = poly.corners[0].z();

@@ -104,9 +104,12 @@ struct GroundTruthOptions {
 
 // Triangulates the surface of the scene's union of solids inside the region. Hidden surface is
 // removed where it is easy to do exactly: footprints of solids standing on an upward face (the
-// ground under buildings, a car roof under its cabin) are cut out of it, and triangles that lie
-// entirely inside another solid are dropped. Faces are counter-clockwise seen from free space;
-// vertices shared bit-for-bit are welded.
+// ground under buildings, a car roof under its cabin) are cut out of it, and so are the solids
+// crossing a downward face (a balcony's underside inside its building); the sections of upright
+// boxes and cylinders through an upright face are cut out of it (a facade behind a balcony slab
+// or an annex, the slab's ends inside the building); triangles that lie entirely inside another
+// solid are dropped. Solids just beyond the region still cut the faces of those inside it. Faces
+// are counter-clockwise seen from free space; vertices shared bit-for-bit are welded.
 rim::Mesh BuildGroundTruthMesh(const Scene& scene, const GroundTruthOptions& options);
 
 }  // namespace rim::sim

@@ -261,6 +261,7 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   city_options.frames = o.frames;
   city_options.step = step;
   city_options.buildings = o.buildings;
+  city_options.features = o.features;
   RIM_RETURN_IF_ERROR(ValidateCityOptions(city_options));
   const City city = GenerateCity(city_options);
   const std::vector<Eigen::Isometry3d> poses = CityTrajectory(city, o.frames, step, kSensorHeight);
@@ -357,6 +358,14 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
     "height_max_m": %.6g,
     "setback_from": "the street frontage, %.6g m from the street centre line"
   },
+  "features": {
+    "parked_cars": %.6g,
+    "balconies": %.6g,
+    "annexes": %.6g,
+    "yawed": %.6g,
+    "canopies": %.6g,
+    "about": "shares in [0, 1]: of each kerb in rows of kerb-side parked cars; of buildings with balconies, with an annex, yawed up to 35 deg off the street; of trees with a broad, low crown"
+  },
   "lidar": {
     "beams": %d,
     "columns": %d,
@@ -390,8 +399,9 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
 )",
       o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, MovingJson(city),
       o.buildings.setback_min, o.buildings.setback_max, o.buildings.height_min,
-      o.buildings.height_max, kFrontage, lidar.beams, lidar.columns, lidar.elev_max_deg,
-      lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
+      o.buildings.height_max, kFrontage, o.features.parked_cars, o.features.balconies,
+      o.features.annexes, o.features.yawed, o.features.canopies, lidar.beams, lidar.columns,
+      lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
       gt_options.region_min.x(), gt_options.region_min.y(), gt_options.region_max.x(),
       gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(), gt.faces.size(),
       observed_points.size(), kObservedVoxel, box_json);
@@ -424,13 +434,17 @@ Sensor: %d beams evenly spaced from +%.3g to %.3g deg, %d columns, range %.3g..%
 mounted %.3g m above the ground. Range noise: Gaussian, stddev %.6g m, added along each ray.
 Drive: %d frames, %.6g m apart, counter-clockwise round a 2 x 1 ring of 80 m blocks in the
 right-hand lane. Buildings: %.6g..%.6g m high, facades set back %.6g..%.6g m beyond %.6g m from
-the street centre lines. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
+the street centre lines; %.3g of them with balconies, %.3g with a lower annex, %.3g yawed up to
+35 deg off the street. Rows of cars parked at the kerb take %.3g of each kerb (scattered parked
+cars on the rest); %.3g of the street trees have a broad, low crown. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
 only, not in gt.ply).
 %s)",
       o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, box_text, lidar.beams,
       lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
       kSensorHeight, o.noise, o.frames, step, o.buildings.height_min, o.buildings.height_max,
-      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.walkers, MovingText(city));
+      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.features.balconies,
+      o.features.annexes, o.features.yawed, o.features.parked_cars, o.features.canopies, o.walkers,
+      MovingText(city));
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
   summary.frames = o.frames;
   return summary;

@@ -3,7 +3,8 @@
 //   rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--crossers K]
 //           [--movers K] [--seed S] [--step M] [--columns C] [--gt-margin M]
 //           [--observed-box HX,HY,ZMIN,ZMAX|none] [--building-setback MIN,MAX]
-//           [--building-height MIN,MAX] [--threads T]
+//           [--building-height MIN,MAX] [--parked-cars F] [--balconies F] [--annexes F]
+//           [--yawed F] [--canopies F] [--threads T]
 //   rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 //
 // city: a procedural city scanned by a 64-beam spinning LiDAR driving round a loop of streets,
@@ -52,6 +53,7 @@ struct SimOptions {
   double gt_margin = -1;     // city only: gt.ply covers the drive's bounds plus this; <0: max range
   ObservedBox observed_box;  // city only: what of each frame goes into gt_observed.ply
   BuildingOptions buildings;  // city only: set-back and height ranges
+  CityFeatures features;      // city only: parked cars, balconies, annexes, yaw, broad crowns
   int threads = 0;            // 0: all hardware threads
 };
 

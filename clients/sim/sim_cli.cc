@@ -62,7 +62,8 @@ std::string SimUsage() {
   return R"(usage: rim_sim --scene city --out DIR [--frames N] [--noise M] [--walkers K] [--seed S]
                 [--crossers K] [--movers K] [--step M] [--columns C] [--gt-margin M]
                 [--observed-box HX,HY,ZMIN,ZMAX|none] [--building-setback MIN,MAX]
-                [--building-height MIN,MAX] [--threads T]
+                [--building-height MIN,MAX] [--parked-cars F] [--balconies F]
+                [--annexes F] [--yawed F] [--canopies F] [--threads T]
        rim_sim --scene room --out DIR [--frames N] [--noise M] [--seed S] [--step M] [--threads T]
 
 Writes a synthetic dataset with its ground-truth mesh (gt.ply) and the observed surface
@@ -100,6 +101,18 @@ cloud without faces):
                      0 <= MIN <= MAX <= 20)
   --building-height MIN,MAX
                      city: building heights in metres (default 4,25; 1 <= MIN <= MAX <= 100)
+  --parked-cars F    city: share of each kerb in rows of cars parked right at the kerb, 0.5-3 m
+                     apart (sedans, SUVs, vans); the rest keeps scattered parked cars (default
+                     0.5; each share here is in [0, 1])
+  --balconies F      city: share of buildings with balcony slabs on the street facade at every
+                     floor from about 3 m up, overhanging the frontage by up to 1.5 m (default 0.4)
+  --annexes F        city: share of buildings with a lower annex, 2.5-4.5 m tall, on the street
+                     side or at the street corner (default 0.3)
+  --yawed F          city: share of buildings yawed off the street by up to 35 degrees, the rest by
+                     up to 4 (default 0.35; 0.25 with the other four at 0 gives the city of
+                     rim_sim before these options, bit for bit)
+  --canopies F       city: share of street trees with a broad, low crown (2.5-3.5 m up, radius
+                     2-4 m where there is room) over the sidewalk and the parking lane (default 0.5)
   --threads T        worker threads (default: all cores); the output does not depend on it
 
 Files that an earlier rim_sim run left in DIR (frames, index files, gt.ply, gt_observed.ply) are
@@ -141,6 +154,11 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
                                                    "--observed-box",
                                                    "--building-setback",
                                                    "--building-height",
+                                                   "--parked-cars",
+                                                   "--balconies",
+                                                   "--annexes",
+                                                   "--yawed",
+                                                   "--canopies",
                                                    "--threads"};
       if (kKnown.count(arg) == 0) {
         return absl::InvalidArgumentError(absl::StrCat("unknown flag '", arg, "'"));
@@ -208,6 +226,15 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
     } else if (arg == "--building-height") {
       RIM_RETURN_IF_ERROR(ParseRange(arg, value, kMinBuildingHeight, kMaxBuildingHeight,
                                      &o.buildings.height_min, &o.buildings.height_max));
+    } else if (arg == "--parked-cars" || arg == "--balconies" || arg == "--annexes" ||
+               arg == "--yawed" || arg == "--canopies") {
+      CityFeatures& f = o.features;
+      double* share = arg == "--parked-cars" ? &f.parked_cars
+                      : arg == "--balconies" ? &f.balconies
+                      : arg == "--annexes"   ? &f.annexes
+                      : arg == "--yawed"     ? &f.yawed
+                                             : &f.canopies;
+      RIM_RETURN_IF_ERROR(ParseDouble(arg, value, 0.0, 1.0, true, share, "a share in [0, 1]"));
     } else if (arg == "--threads") {
       RIM_RETURN_IF_ERROR(ParseInt(arg, value, 1, 256, &o.threads, "an integer in [1, 256]"));
     } else {
@@ -216,8 +243,10 @@ absl::StatusOr<SimOptions> ParseSimArgs(int argc, const char* const* argv, bool*
   }
   if (!have_out) return absl::InvalidArgumentError("--out DIR is required");
   if (o.scene == SceneKind::kRoom) {
-    for (const char* city_only : {"--walkers", "--crossers", "--movers", "--columns", "--gt-margin",
-                                  "--observed-box", "--building-setback", "--building-height"}) {
+    for (const char* city_only :
+         {"--walkers", "--crossers", "--movers", "--columns", "--gt-margin", "--observed-box",
+          "--building-setback", "--building-height", "--parked-cars", "--balconies", "--annexes",
+          "--yawed", "--canopies"}) {
       if (given.count(city_only)) {
         return absl::InvalidArgumentError(absl::StrCat(city_only, " only applies to --scene city"));
       }

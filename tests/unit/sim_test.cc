@@ -316,6 +316,13 @@ TEST(SimSceneTest, GridRayCasterMatchesBruteForce) {
   }
 }
 
+// A building's main box, not an annex or a balcony slab (both thinner than 5 m one way).
+bool MainBuilding(const Primitive& p) {
+  const Box* box = std::get_if<Box>(&p.shape);
+  return p.material == Material::kBuilding && box != nullptr && box->half.x() >= 2.5 &&
+         box->half.y() >= 2.5;
+}
+
 TEST(SimSceneTest, CityIsDeterministicAndVariesWithSeed) {
   const City a = GenerateCity(CityOptions{});
   const City b = GenerateCity(CityOptions{});
@@ -332,7 +339,10 @@ TEST(SimSceneTest, CityIsDeterministicAndVariesWithSeed) {
     switch (a.scene.primitives[i].material) {
       case Material::kBuilding:
         ++buildings;
-        EXPECT_GE(x.max.z(), BuildingOptions{}.height_min);
+        // Annexes and balconies are lower than the building they belong to.
+        if (MainBuilding(a.scene.primitives[i])) {
+          EXPECT_GE(x.max.z(), BuildingOptions{}.height_min);
+        }
         EXPECT_LE(x.max.z(), BuildingOptions{}.height_max);
         break;
       case Material::kTree:
@@ -387,7 +397,7 @@ TEST(SimSceneTest, BuildingsRespectTheHeightAndSetBackRanges) {
     int buildings = 0;
     double lowest = 1e9, highest = 0, nearest = 1e9, farthest = 0;
     for (const Primitive& p : city.scene.primitives) {
-      if (p.material != Material::kBuilding) continue;
+      if (!MainBuilding(p)) continue;  // annexes and balconies: SimFeaturesTest
       ++buildings;
       const Box& box = std::get<Box>(p.shape);
       const Aabb bounds = Bounds(p.shape);
@@ -1028,6 +1038,243 @@ TEST(SimPngTest, SixteenBitRoundTrip) {
 // ---------------------------------------------------------------------------------------------
 // Moving things: crossers and movers
 
+// ---------------------------------------------------------------------------------------------
+// CityFeatures: kerb-side parked cars, balconies, annexes, yawed buildings, broad crowns
+
+CityOptions FeatureCity(uint64_t seed, double share) {
+  CityOptions co;
+  co.seed = seed;
+  co.features = {share, share, share, share, share};
+  return co;
+}
+
+// What each feature adds, counted in the static scene.
+struct FeatureCounts {
+  int kerb_cars = 0;  // car bodies with their kerb side within 19 cm of the kerb line
+  int balconies = 0;  // building slabs from kLowestBalcony up
+  int annexes = 0;    // building boxes on the ground thinner than a main building
+  int yawed = 0;      // main buildings more than 5 degrees off their street
+  int canopies = 0;   // broad crowns: tree cylinders wider than any trunk
+  int buildings = 0, cars = 0, trees = 0;
+};
+
+FeatureCounts CountFeatures(const City& city) {
+  FeatureCounts n;
+  for (const Primitive& p : city.scene.primitives) {
+    const Aabb b = Bounds(p.shape);
+    if (p.material == Material::kCar && b.min.z() < 0) {
+      ++n.cars;
+      double nearest = 1e9;  // of the footprint's corners, to the street centre line
+      double farthest = 0;
+      for (const Vec2& c : FootprintCorners(std::get<Box>(p.shape))) {
+        nearest = std::min(nearest, StreetDistance(c));
+        farthest = std::max(farthest, StreetDistance(c));
+      }
+      n.kerb_cars += farthest > 4.5 - 0.15 - 0.04 && farthest < 4.5 && nearest > 2.4;
+    } else if (p.material == Material::kBuilding) {
+      if (MainBuilding(p)) {
+        ++n.buildings;
+        const double yaw = std::get<Box>(p.shape).yaw;
+        const double off = std::abs(std::remainder(yaw, M_PI / 2));
+        n.yawed += off > 5.0 * M_PI / 180;
+      } else if (b.min.z() >= kLowestBalcony) {
+        ++n.balconies;
+      } else {
+        ++n.annexes;
+      }
+    } else if (p.material == Material::kTree) {
+      ++n.trees;
+      const auto* cyl = std::get_if<Cylinder>(&p.shape);
+      n.canopies += cyl != nullptr && cyl->radius > 1.0;
+    }
+  }
+  return n;
+}
+
+TEST(SimFeaturesTest, OptionsAreValidatedNamingTheField) {
+  for (const char* name : {"parked_cars", "balconies", "annexes", "yawed", "canopies"}) {
+    for (double bad : {-0.01, 1.01, std::nan(""), std::numeric_limits<double>::infinity()}) {
+      CityOptions o;
+      CityFeatures& f = o.features;
+      double* share = std::string(name) == "parked_cars" ? &f.parked_cars
+                      : std::string(name) == "balconies" ? &f.balconies
+                      : std::string(name) == "annexes"   ? &f.annexes
+                      : std::string(name) == "yawed"     ? &f.yawed
+                                                         : &f.canopies;
+      for (double ok : {0.0, 1.0}) {
+        *share = ok;
+        EXPECT_TRUE(ValidateCityOptions(o).ok()) << name;
+      }
+      *share = bad;
+      const absl::Status status = ValidateCityOptions(o);
+      EXPECT_EQ(status.code(), absl::StatusCode::kInvalidArgument) << name << " " << bad;
+      EXPECT_NE(
+          status.message().find(absl::StrCat("CityOptions.features.", name, " must be in [0, 1]")),
+          std::string::npos)
+          << status;
+    }
+  }
+  SimOptions o = SmallCity(TempDir("bad_features"));
+  o.features.annexes = 3.0;
+  const absl::StatusOr<SimSummary> run = RunSim(o);
+  EXPECT_EQ(run.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(run.status().message().find("features.annexes"), std::string::npos) << run.status();
+}
+
+TEST(SimFeaturesTest, EachFeatureIsThereWhenAskedAndGoneAtZero) {
+  const CityFeatures defaults;
+  EXPECT_GT(defaults.parked_cars, 0.3);
+  EXPECT_GT(defaults.balconies, 0.2);
+  EXPECT_GT(defaults.annexes, 0.2);
+  EXPECT_GT(defaults.yawed, 0.25);
+  EXPECT_GT(defaults.canopies, 0.3);
+  for (uint64_t seed : {1, 7}) {
+    const FeatureCounts none = CountFeatures(GenerateCity(FeatureCity(seed, 0.0)));
+    const FeatureCounts all = CountFeatures(GenerateCity(FeatureCity(seed, 1.0)));
+    CityOptions co;
+    co.seed = seed;
+    const FeatureCounts mix = CountFeatures(GenerateCity(co));
+    EXPECT_EQ(none.balconies, 0);
+    EXPECT_EQ(none.annexes, 0);
+    EXPECT_EQ(none.yawed, 0);
+    EXPECT_EQ(none.canopies, 0);
+    EXPECT_GT(none.cars, 60);  // the scattered parked cars stay
+    EXPECT_GT(all.balconies, 300) << "seed " << seed;
+    EXPECT_GT(all.annexes, 0.4 * all.buildings) << "seed " << seed;
+    EXPECT_GT(all.yawed, 0.7 * all.buildings) << "seed " << seed;
+    EXPECT_GT(all.canopies, 0.7 * all.trees / 3) << "seed " << seed;  // trunk, disc, cone
+    EXPECT_GT(all.kerb_cars, 2.5 * none.kerb_cars) << "seed " << seed;
+    EXPECT_GT(all.cars, 2.5 * none.cars) << "seed " << seed;
+    // The default mix has some of everything.
+    EXPECT_GT(mix.balconies, 50);
+    EXPECT_GT(mix.annexes, 0.15 * mix.buildings);
+    EXPECT_GT(mix.yawed, 0.1 * mix.buildings);
+    EXPECT_LT(mix.yawed, 0.5 * mix.buildings);
+    EXPECT_GT(mix.canopies, 20);
+    EXPECT_GT(mix.kerb_cars, 150);
+  }
+  // One feature at a time: only it changes.
+  CityOptions only_canopies = FeatureCity(3, 0.0);
+  only_canopies.features.canopies = 1.0;
+  const FeatureCounts c = CountFeatures(GenerateCity(only_canopies));
+  EXPECT_GT(c.canopies, 30);
+  EXPECT_EQ(c.balconies + c.annexes + c.yawed, 0);
+}
+
+TEST(SimFeaturesTest, PartsKeepTheirPlaces) {
+  const City city = GenerateCity(FeatureCity(2, 1.0));
+  const RayCaster caster(city.scene, 4.0);
+  int balconies_hit = 0;
+  for (const Primitive& p : city.scene.primitives) {
+    const Aabb b = Bounds(p.shape);
+    if (p.material == Material::kBuilding && !MainBuilding(p)) {
+      double nearest = 1e9;
+      for (const Vec2& c : FootprintCorners(std::get<Box>(p.shape))) {
+        nearest = std::min(nearest, StreetDistance(c));
+      }
+      if (b.min.z() >= kLowestBalcony) {
+        // A balcony: thin, overhanging the frontage by at most kMaxBalconyDepth.
+        EXPECT_GE(nearest, kFrontage - kMaxBalconyDepth - 1e-6);
+        EXPECT_LE(b.max.z() - b.min.z(), 0.2 + 1e-9);
+        // Seen from below, outside its building: its underside.
+        const Box& slab = std::get<Box>(p.shape);
+        const Vec2 under = slab.center.head<2>() + BoxToWorld(slab, 0, -0.9 * slab.half.y());
+        RayHit hit;
+        if (caster.Cast(Vec3(under.x(), under.y(), 1.0), Vec3::UnitZ(), 0.0, 100.0, &hit) &&
+            std::abs(hit.t - (b.min.z() - 1.0)) < 1e-9 && hit.normal.z() < -0.999) {
+          ++balconies_hit;
+        }
+      } else {
+        // An annex: on the ground, behind the frontage, 2.5-4.5 m tall.
+        EXPECT_LT(b.min.z(), 0.0);
+        EXPECT_GE(nearest, kFrontage - 1e-6);
+        EXPECT_GE(b.max.z(), 2.5);
+        EXPECT_LE(b.max.z(), 4.5);
+      }
+    } else if (p.material == Material::kTree) {
+      const auto* disc = std::get_if<Cylinder>(&p.shape);
+      if (disc != nullptr && disc->radius > 1.0) {
+        EXPECT_GE(disc->z_min, 2.5);
+        EXPECT_LE(disc->z_min, 3.5);
+        EXPECT_LE(disc->radius, 4.0);
+        // It leaves the sensor's lane open.
+        EXPECT_GE(StreetDistance(disc->center) - disc->radius, kLaneOffset);
+      }
+    }
+  }
+  EXPECT_GT(balconies_hit, 100);
+}
+
+// The union's surface, exactly: a facade hidden behind a balcony slab or an annex, the slab's
+// and the annex's ends inside the building and the slab's underside there are all cut away.
+TEST(SimFeaturesTest, GroundTruthCutsWhatBalconiesAndAnnexesHide) {
+  Scene scene;
+  scene.has_ground = true;
+  // A 10 x 10 x 10 m building, a 3 m wide slab 1.5 m deep and 0.2 m thick reaching 3 cm into its
+  // facade at y = 0, and a 4 x 2 x 3 m annex reaching 3 cm into it.
+  scene.primitives.push_back(
+      {MakeBoxZ(Vec2(5, 5), Vec2(5, 5), 0.0, -0.03, 10.0), Material::kBuilding});
+  scene.primitives.push_back(
+      {MakeBoxZ(Vec2(3.5, -0.735), Vec2(1.5, 0.765), 0.0, 3.0, 3.2), Material::kBuilding});
+  scene.primitives.push_back(
+      {MakeBoxZ(Vec2(8.0, -0.985), Vec2(1.5, 1.015), 0.0, -0.03, 3.0), Material::kBuilding});
+  GroundTruthOptions opt;
+  opt.region_min = Vec2(-5, -5);
+  opt.region_max = Vec2(15, 15);
+  const Mesh gt = BuildGroundTruthMesh(scene, opt);
+  double area = 0;
+  for (const auto& f : gt.faces) {
+    Vec3 v[3];
+    for (int k = 0; k < 3; ++k) {
+      v[k] = Vec3(gt.vertices[f[k]][0], gt.vertices[f[k]][1], gt.vertices[f[k]][2]);
+    }
+    area += 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).norm();
+  }
+  const double ground = 20 * 20 - 100 - 3 * 2;
+  const double building = 4 * 10 * 10 + 100 - 3 * 0.2 - 3 * 3;  // less what the parts hide
+  const double slab = 2 * 3 * 1.5 + 3 * 0.2 + 2 * 1.5 * 0.2;
+  const double annex = 3 * 2 + 3 * 3 + 2 * 2 * 3;
+  EXPECT_NEAR(area, ground + building + slab + annex, 1e-6);
+  ExpectNoBuriedFaces(scene, gt);
+}
+
+TEST(SimFeaturesTest, RichCityGroundTruthHasNoHiddenFaces) {
+  const City city = GenerateCity(FeatureCity(4, 1.0));
+  GroundTruthOptions opt;
+  opt.region_min = Vec2(60, -30);
+  opt.region_max = Vec2(170, 40);
+  ExpectNoBuriedFaces(city.scene, BuildGroundTruthMesh(city.scene, opt));
+}
+
+CityOptions MovingCity(uint64_t seed, int crossers, int movers, int frames);
+int StaticContacts(const City& city, const GridIndex& index, const std::vector<Primitive>& moving,
+                   double gap, int* pairs);
+
+TEST(SimFeaturesTest, NothingMovingMeetsTheRichCity) {
+  for (double share : {-1.0, 1.0}) {  // the defaults, then every feature everywhere
+    CityOptions co = MovingCity(11, 12, 6, 500);
+    co.walkers = 40;
+    if (share >= 0) co.features = {share, share, share, share, share};
+    const City city = GenerateCity(co);
+    const GridIndex index(city.scene.primitives, 4.0);
+    int pairs = 0, contacts = 0;
+    for (int k = 0; k < 500; k += 2) {
+      contacts += StaticContacts(city, index, MovingAt(city, k / kFrameRateHz), 0.05, &pairs);
+    }
+    EXPECT_EQ(contacts, 0) << "share " << share;
+    EXPECT_GT(pairs, 1000) << "share " << share;
+  }
+}
+
+TEST(SimFeaturesTest, SameSeedSameCity) {
+  const City a = GenerateCity(FeatureCity(9, 0.7)), b = GenerateCity(FeatureCity(9, 0.7));
+  ASSERT_EQ(a.scene.primitives.size(), b.scene.primitives.size());
+  for (size_t i = 0; i < a.scene.primitives.size(); ++i) {
+    EXPECT_EQ(Bounds(a.scene.primitives[i].shape).min, Bounds(b.scene.primitives[i].shape).min);
+    EXPECT_EQ(Bounds(a.scene.primitives[i].shape).max, Bounds(b.scene.primitives[i].shape).max);
+  }
+}
+
 CityOptions MovingCity(uint64_t seed, int crossers, int movers, int frames) {
   CityOptions co;
   co.seed = seed;
@@ -1612,6 +1859,17 @@ TEST(SimCliTest, BadArgumentsFailWithAMessage) {
        "--building-height only applies to --scene city"},
       {{"--scene", "room", "--out", dir, "--building-setback", "1,2"},
        "--building-setback only applies to --scene city"},
+      {{"--out", dir, "--parked-cars", "1.5"},
+       "--parked-cars must be a share in [0, 1], got '1.5'"},
+      {{"--out", dir, "--balconies", "-0.1"}, "--balconies must be a share in [0, 1]"},
+      {{"--out", dir, "--annexes", "nan"}, "--annexes must be a share in [0, 1]"},
+      {{"--out", dir, "--yawed", "half"}, "--yawed must be a share in [0, 1]"},
+      {{"--out", dir, "--canopies=2"}, "--canopies must be a share in [0, 1]"},
+      {{"--out", dir, "--canopies"}, "--canopies needs a value"},
+      {{"--scene", "room", "--out", dir, "--balconies", "0.5"},
+       "--balconies only applies to --scene city"},
+      {{"--scene", "room", "--out", dir, "--parked-cars", "0"},
+       "--parked-cars only applies to --scene city"},
   };
   for (const auto& [args, message] : cases) {
     const CliResult r = Cli(args);
