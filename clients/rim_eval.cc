@@ -15,6 +15,7 @@
 #include <memory>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "absl/strings/numbers.h"
@@ -37,7 +38,7 @@ using rim::eval::Metrics;
 constexpr char kUsage[] =
     "usage: rim_eval PRED.ply GT.ply [--json] [--samples N] [--threads N] [--seed S]\n"
     "                [--voxel M] [--no-crop] [--region x0,y0,z0,x1,y1,z1]\n"
-    "                [--box HX,HY,ZMIN,ZMAX --seq DIR]\n"
+    "                [--box HX,HY,ZMIN,ZMAX --seq DIR] [--misses FILE] [--floaters FILE]\n"
     "  --json         print one JSON object instead of the table\n"
     "  --samples N    points sampled on each mesh before voxel averaging (default 1e7)\n"
     "  --threads N    worker threads (default: all cores)\n"
@@ -54,6 +55,10 @@ constexpr char kUsage[] =
     "                 sides' samples and points outside it are left out. With rim_sim's\n"
     "                 gt_observed.ply from --observed-box none, this scores what a mapper with\n"
     "                 that local map could have seen, from near or far\n"
+    "  --misses FILE  write CSV x,y,z,distance_m of the GT points (voxel-averaged) farther than\n"
+    "                 10 cm from the prediction: where the map misses surface\n"
+    "  --floaters FILE\n"
+    "                 write the same for the prediction points farther than 20 cm from the GT\n"
     "A PLY without faces is a point cloud: its vertices are used as they are (voxel-averaged, not\n"
     "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.\n";
 
@@ -64,8 +69,9 @@ struct Args {
   bool has_region = false;
   std::array<float, 3> region_min{}, region_max{};
   bool has_box = false;
-  double box[4] = {0, 0, 0, 0};  // HX, HY, ZMIN, ZMAX
-  std::string seq_dir;           // empty: no --seq
+  double box[4] = {0, 0, 0, 0};            // HX, HY, ZMIN, ZMAX
+  std::string seq_dir;                     // empty: no --seq
+  std::string misses_path, floaters_path;  // empty: not written
 };
 
 // Returns false (after printing why) on bad arguments.
@@ -152,6 +158,11 @@ bool ParseArgs(int argc, char** argv, Args* args) {
       if (!next_value(&v)) return false;
       if (v.empty()) return bad_value(v);
       args->seq_dir = v;
+    } else if (arg == "--misses" || arg == "--floaters") {
+      if (!next_value(&v)) return false;
+      if (v.empty()) return bad_value(v);
+      (arg == "--misses" ? args->misses_path : args->floaters_path) = v;
+      args->options.keep_outliers = true;
     } else if (arg == "--voxel") {
       if (!next_value(&v)) return false;
       if (!absl::SimpleAtod(v, &args->options.voxel_m) || !(args->options.voxel_m >= 0)) {
@@ -318,6 +329,19 @@ std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
   return out;
 }
 
+// CSV x,y,z,distance_m, one line a point.
+absl::Status WriteOutliers(const std::string& path,
+                           const std::vector<EvalResult::OutlierPoint>& points) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (f == nullptr) return absl::InvalidArgumentError(absl::StrCat("cannot write ", path));
+  std::fputs("x,y,z,distance_m\n", f);
+  for (const EvalResult::OutlierPoint& p : points) {
+    std::fprintf(f, "%.4f,%.4f,%.4f,%.4f\n", p.x, p.y, p.z, p.distance_m);
+  }
+  if (std::fclose(f) != 0) return absl::DataLossError(absl::StrCat("cannot finish ", path));
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -358,6 +382,14 @@ int main(int argc, char** argv) {
   if (!result.ok()) {
     std::fprintf(stderr, "rim_eval: %s\n", std::string(result.status().message()).c_str());
     return 1;
+  }
+  for (const auto& [path, points] :
+       {std::pair{args.misses_path, &result->misses}, {args.floaters_path, &result->floaters}}) {
+    if (path.empty()) continue;
+    if (absl::Status s = WriteOutliers(path, *points); !s.ok()) {
+      std::fprintf(stderr, "rim_eval: %s\n", std::string(s.message()).c_str());
+      return 1;
+    }
   }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -9,9 +9,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
 #include <memory>
 #include <random>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -866,6 +868,37 @@ TEST_F(RimEvalCliTest, PrintsJson) {
   EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
 }
 
+TEST_F(RimEvalCliTest, WritesMissesAndFloaters) {
+  // The prediction covers x < 1 of the GT's [0, 2]^2, plus a patch 50 cm up (kept: --no-crop).
+  const std::string pred = ::testing::TempDir() + "/rim_mesh_eval_half.ply";
+  ASSERT_TRUE(
+      WriteMeshPly(pred, Merged(PlaneZ(0, 0, 1, 0, 2), PlaneZ(0.5f, 0.2f, 0.6f, 0.2f, 0.6f))).ok());
+  const std::string misses = ::testing::TempDir() + "/rim_mesh_eval_misses.csv";
+  const std::string floaters = ::testing::TempDir() + "/rim_mesh_eval_floaters.csv";
+  const RunResult r = RunRimEval(pred + " " + gt_ + " --samples 40000 --no-crop --misses " +
+                                 misses + " --floaters=" + floaters);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  for (const auto& [path, lo, hi, z] :
+       {std::tuple{misses, 1.09, 2.0, 0.0}, std::tuple{floaters, 0.2, 0.6, 0.5}}) {
+    std::ifstream in(path);
+    std::string line;
+    ASSERT_TRUE(std::getline(in, line)) << path;
+    EXPECT_EQ(line, "x,y,z,distance_m");
+    int rows = 0;
+    while (std::getline(in, line)) {
+      double x, y, zz, d;
+      ASSERT_EQ(std::sscanf(line.c_str(), "%lf,%lf,%lf,%lf", &x, &y, &zz, &d), 4) << line;
+      EXPECT_TRUE(x >= lo && x <= hi) << path << ": " << line;
+      EXPECT_NEAR(zz, z, 0.01) << line;
+      ++rows;
+    }
+    EXPECT_GT(rows, 100) << path;
+  }
+  const RunResult bad = RunRimEval(pred + " " + gt_ + " --misses /nonexistent/dir/m.csv");
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.out.find("cannot write /nonexistent/dir/m.csv"), std::string::npos) << bad.out;
+}
+
 // The number after `key` in `out`, NaN when `key` is missing.
 double NumberAfter(const std::string& out, const std::string& key) {
   const size_t at = out.find(key);
@@ -1014,6 +1047,44 @@ TEST_F(RimEvalCliTest, FailsClearlyOnBadInput) {
   r = RunRimEval(pred_ + " " + gt_ + " --samples lots --frobnicate");
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.out.find("bad value for --samples: 'lots'"), std::string::npos) << r.out;
+}
+
+// --- Outlier lists (rim_eval --misses / --floaters)
+// ------------------------------------------------
+
+TEST(MeshEvalOutlierTest, ListsTheMissedGtAndTheFloatingPrediction) {
+  // GT: ground [0, 4]^2. Prediction: the ground's half x < 2 and a patch 50 cm above it.
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);
+  const Mesh pred = Merged(PlaneZ(0, 0, 2, 0, 4), PatchZ(0.5f));
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;
+  const auto quiet = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(quiet.ok()) << quiet.status();
+  EXPECT_TRUE(quiet->misses.empty());  // only kept when asked
+  EXPECT_TRUE(quiet->floaters.empty());
+  options.keep_outliers = true;
+  const auto r = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  // Every GT point farther than 10 cm from the prediction, and only those, is a miss: the ground
+  // at x > 2.1 (the patch covers none of it).
+  ASSERT_FALSE(r->misses.empty());
+  for (const auto& m : r->misses) {
+    EXPECT_GT(m.x, 2.09f);
+    EXPECT_GT(m.distance_m, 0.1f);
+    EXPECT_NEAR(m.distance_m, m.x - 2.0f, 0.02f);
+  }
+  EXPECT_NEAR(static_cast<double>(r->misses.size()) / r->gt_points, 1.9 / 4.0, 0.03);
+  EXPECT_NEAR(1.0 - static_cast<double>(r->misses.size()) / r->gt_points, r->standard.recall, 1e-9);
+  // The floaters are the patch's points, 50 cm above the ground.
+  ASSERT_FALSE(r->floaters.empty());
+  for (const auto& f : r->floaters) {
+    EXPECT_NEAR(f.z, 0.5f, 0.01f);
+    EXPECT_NEAR(f.distance_m, 0.5f, 0.01f);
+    EXPECT_TRUE(f.x >= 1 && f.x <= 2 && f.y >= 1 && f.y <= 2);
+  }
+  // The metrics are the same whether or not the lists are kept.
+  EXPECT_EQ(r->standard.recall, quiet->standard.recall);
+  EXPECT_EQ(r->floater_share, quiet->floater_share);
 }
 
 }  // namespace

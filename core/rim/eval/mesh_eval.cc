@@ -545,6 +545,19 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
   result.floater_share =
       static_cast<double>(floater_samples) / static_cast<double>(result.pred_samples);
   result.floater_area_m2 = static_cast<double>(floater_samples) * pred_area_per_sample;
+  if (options.keep_outliers) {
+    for (size_t i = 0; i < gt_to_pred.size(); ++i) {
+      if (gt_to_pred[i] > options.fscore_m) {
+        result.misses.push_back({gt_points[i][0], gt_points[i][1], gt_points[i][2], gt_to_pred[i]});
+      }
+    }
+    for (size_t i = 0; i < pred_to_gt.size(); ++i) {
+      if (pred_to_gt[i] > options.floater_m) {
+        result.floaters.push_back(
+            {pred_points[i][0], pred_points[i][1], pred_points[i][2], pred_to_gt[i]});
+      }
+    }
+  }
   return result;
 }
 

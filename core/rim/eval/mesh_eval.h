@@ -23,6 +23,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -52,6 +53,9 @@ struct EvalOptions {
   // When set, both the prediction and the GT are evaluated only inside this union of boxes (after
   // the crop of step 1).
   std::shared_ptr<const BoxUnion> box_union;
+  // When set, EvalResult lists the GT points farther than fscore_m from the prediction (the
+  // misses) and the prediction points farther than floater_m from the GT (the floaters).
+  bool keep_outliers = false;
 };
 
 // Fractions are in [0, 1]; distances in metres.
@@ -89,6 +93,13 @@ struct EvalResult {
   // given, after cropping) and the area 0.
   double floater_share = 0;
   double floater_area_m2 = 0;
+  // With EvalOptions::keep_outliers: the voxel-averaged points, each with its distance to the
+  // other side, in voxel-key order.
+  struct OutlierPoint {
+    float x, y, z, distance_m;
+  };
+  std::vector<OutlierPoint> misses;    // GT points farther than fscore_m from the prediction
+  std::vector<OutlierPoint> floaters;  // prediction points farther than floater_m from the GT
 };
 
 // Checks every field, naming the bad one.
