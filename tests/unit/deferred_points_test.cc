@@ -156,9 +156,10 @@ TEST(DeferredPointsTest, TheBoundDropsTheLongestRangesFirst) {
   std::uniform_real_distribution<float> u(0.f, 1.f);
   Rays r;
   const Vec3f sensor(0, 0, 1.7f);
-  // 2000 distinct voxels of one sub-map (x in [20, 40)), seen from origins at random distances.
+  // 2000 distinct voxels of one sub-map (x in [20.4, 40.8)), seen from origins at random
+  // distances.
   for (int i = 0; i < 2000; ++i) {
-    const Vec3f p(20.05f + 0.1f * float(i % 100), 0.05f + 0.1f * float(i / 100), 1.05f);
+    const Vec3f p(21.05f + 0.1f * float(i % 100), 0.05f + 0.1f * float(i / 100), 1.05f);
     r.Add(p, p - Vec3f(5.f + 40.f * u(rng), 0, 0));
   }
   store.Add(r.p, r.o, sensor);

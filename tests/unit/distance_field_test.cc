@@ -19,7 +19,16 @@ class DistanceFieldTest : public ::testing::Test {
  protected:
   // Disks of 0.075 m cover a plane sampled on the 0.1 m voxel grid (the diagonal gap is 0.0707 m),
   // so distances to it are exact.
-  DistanceFieldTest() : geometry_(GridConfig{}), field_(geometry_, kRadius) {}
+  DistanceFieldTest() : geometry_(TwentyMetreSubmaps()), field_(geometry_, kRadius) {}
+  // Sub-maps of 20 × 20 × 6 m, so that the cases below can be written in round numbers: a box of
+  // 19.6 × 19.6 × 5.6 m asked, one coarse voxel of 0.4 m more per axis (map_geometry.h).
+  static GridConfig TwentyMetreSubmaps() {
+    GridConfig g;
+    g.half_extent_x_m = g.half_extent_y_m = 9.8f;
+    g.z_min_m = -2.8f;
+    g.z_max_m = 2.8f;
+    return g;
+  }
   static constexpr float kRadius = 0.075f;
 
   // One surfel per voxel column of the plane z = z0 (normal +z) over [x0, x1) × [y0, y1), as

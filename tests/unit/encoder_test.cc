@@ -137,13 +137,13 @@ class EncoderTest : public ::testing::Test {
 TEST_F(EncoderTest, GeometryIsTheSmallBox) {
   EXPECT_EQ(geo_.levels(), 3);
   EXPECT_EQ(geo_.feature_dim(), 8);
-  EXPECT_EQ(geo_.cells(2), Int3(10, 10, 6));
-  EXPECT_EQ(geo_.cells(0), Int3(40, 40, 24));
+  EXPECT_EQ(geo_.cells(2), Int3(11, 11, 7));  // one coarse voxel more than asked per axis
+  EXPECT_EQ(geo_.cells(0), Int3(44, 44, 28));
 }
 
 TEST_F(EncoderTest, EncodeLocalMatchesDirectReference) {
   // A negative origin makes every level's ring buffer wrap inside the box (e.g. level 0 x spans
-  // lattice −12..28, slots 29..40 then 0..28), so PosMod and the upper-corner wrap are exercised.
+  // lattice −12..32, slots 33..44 then 0..32), so PosMod and the upper-corner wrap are exercised.
   PlaceAndFill(&map_, Int3(-3, 2, -1), 1);
   const int n = 500, F = geo_.encoding_dim();
   const std::vector<float> xyz = RandomPointsInBox(map_, n, 2);

@@ -74,12 +74,13 @@ TEST_F(FreeSpaceTest, DiagonalRayMarksAConnectedChainOfVoxels) {
 }
 
 TEST_F(FreeSpaceTest, ClipsRaysToTheBox) {
-  // Starts outside the box (x < 0) and ends outside it (x > 4): only the part inside is walked.
+  // Starts outside the box (x < 0) and ends outside it (x > 4.4, the 4 m asked and one coarse
+  // voxel): only the part inside is walked.
   const Vec3f o(-5.f, 2.05f, 1.05f), p(9.f, 2.05f, 1.05f);
   MarkFreeSpace({p}, {o}, 0.15f, 100, &map_);
   EXPECT_TRUE(SeenFree(Vec3f(0.05f, 2.05f, 1.05f)));
-  EXPECT_TRUE(SeenFree(Vec3f(3.95f, 2.05f, 1.05f)));
-  EXPECT_EQ(CountSeenFree(), 40);
+  EXPECT_TRUE(SeenFree(Vec3f(4.35f, 2.05f, 1.05f)));
+  EXPECT_EQ(CountSeenFree(), 44);
 }
 
 TEST_F(FreeSpaceTest, RayBudgetBoundsTheWork) {

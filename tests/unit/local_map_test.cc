@@ -26,7 +26,8 @@ namespace {
 
 MapperConfig SmallConfig() {
   MapperConfig c = *MakePreset("maicity");
-  // A 4 m × 4 m × 2.4 m box: coarse cells (10, 10, 6) of 0.4 m; level 0 has 41×41×25 points.
+  // A 4 m × 4 m × 2.4 m box, one coarse voxel more per axis (map_geometry.h): coarse cells
+  // (11, 11, 7) of 0.4 m; level 0 has 45×45×29 points.
   absl::Status s = ApplyOverrides(
       {"grid.half_extent_x_m=2", "grid.half_extent_y_m=2", "grid.z_min_m=-1.2", "grid.z_max_m=1.2"},
       &c);
@@ -219,7 +220,7 @@ TEST_P(LocalMapSlidingTest, RandomMovesMatchGlobalReference) {
   SlidingHarness h(/*background=*/std::get<0>(GetParam()), /*seed=*/1234,
                    /*run_loads=*/std::get<1>(GetParam()));
   const MapGeometry& geo = h.geometry();
-  ASSERT_EQ(geo.cells(0), Int3(40, 40, 24));
+  ASSERT_EQ(geo.cells(0), Int3(44, 44, 28));
   const Int3 coarse = geo.cells(geo.levels() - 1);
 
   Int3 origin(0, 0, 0);
@@ -418,6 +419,38 @@ TEST(LocalMapTest, SaveBatchHoldsOnlyLeavingVoxelsWithData) {
   ASSERT_EQ(batches[0].observed.size(), 1u);
   EXPECT_EQ(batches[0].observed[0], 1);
   EXPECT_EQ(map.level(0).features(map.Slot(0, staying))[0], 2.5f);
+}
+
+// The box moves in whole coarse voxels, yet always holds the configured box about the robot: a
+// robot driving along a street maps the facade 9.9 m to its side (half extent 10 m) wherever it
+// stands on the coarse lattice.
+TEST(MapGeometryTest, BoxHoldsTheConfiguredExtentAboutTheRobot) {
+  for (const char* preset : {"maicity", "kitti", "campus", "replica"}) {
+    const MapperConfig c = *MakePreset(preset);
+    const MapGeometry geo(c.grid);
+    const Vec3d lo_rel(-c.grid.half_extent_x_m, -c.grid.half_extent_y_m, c.grid.z_min_m);
+    const Vec3d hi_rel(c.grid.half_extent_x_m, c.grid.half_extent_y_m, c.grid.z_max_m);
+    const double coarse = geo.voxel_m(geo.levels() - 1);
+    // At most one coarse voxel more than asked, per axis.
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_GE(geo.extent_m()[a], hi_rel[a] - lo_rel[a] - 1e-9) << preset;
+      EXPECT_LE(geo.extent_m()[a], hi_rel[a] - lo_rel[a] + coarse + 1e-6) << preset;
+    }
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(-500.0, 500.0);
+    std::vector<Vec3d> positions = {{161.8, 31.5, 1.73}, {0, 0, 0}, {-0.2, 0.2, -0.4}};
+    for (int i = 0; i < 2000; ++i) positions.emplace_back(u(rng), u(rng), 0.01 * u(rng));
+    // Robots standing exactly on lattice planes and half-way between them.
+    for (int k = -5; k <= 5; ++k) positions.emplace_back(k * coarse, (k + 0.5) * coarse, 1.73);
+    for (const Vec3d& p : positions) {
+      const Vec3d box_lo = geo.BoxOriginFor(p).cast<double>() * coarse;
+      const Vec3d box_hi = box_lo + geo.extent_m();
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_LE(box_lo[a], p[a] + lo_rel[a] + 1e-6) << preset << " axis " << a;
+        EXPECT_GE(box_hi[a], p[a] + hi_rel[a] - 1e-6) << preset << " axis " << a;
+      }
+    }
+  }
 }
 
 }  // namespace

@@ -50,9 +50,10 @@ namespace fs = std::filesystem;
 
 MapperConfig SmallConfig() {
   MapperConfig c = *MakePreset("maicity");
-  // Sub-maps of 4 m × 4 m × 2.4 m: level 0 has 40×40×24 cells, i.e. 5×5×3 blocks of 8³.
+  // Sub-maps of 4 m × 4 m × 2.4 m (a 3.6 m × 3.6 m × 2 m box asked, one coarse voxel of 0.4 m
+  // more per axis: map_geometry.h): level 0 has 40×40×24 cells, i.e. 5×5×3 blocks of 8³.
   absl::Status s = ApplyOverrides(
-      {"grid.half_extent_x_m=2", "grid.half_extent_y_m=2", "grid.z_min_m=-1.2", "grid.z_max_m=1.2"},
+      {"grid.half_extent_x_m=1.8", "grid.half_extent_y_m=1.8", "grid.z_min_m=-1", "grid.z_max_m=1"},
       &c);
   EXPECT_TRUE(s.ok()) << s;
   return c;

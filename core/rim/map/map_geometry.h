@@ -22,9 +22,14 @@ class MapGeometry {
   explicit MapGeometry(const GridConfig& grid)
       : levels_(grid.levels), feature_dim_(grid.feature_dim), leaf_m_(grid.leaf_size_m) {
     coarse_m_ = leaf_m_ * double(1 << (levels_ - 1));
-    coarse_cells_ = Int3(int(std::lround(2.0 * grid.half_extent_x_m / coarse_m_)),
-                         int(std::lround(2.0 * grid.half_extent_y_m / coarse_m_)),
-                         int(std::lround((double(grid.z_max_m) - grid.z_min_m) / coarse_m_)));
+    // The box moves in whole coarse voxels, so a box of exactly the configured extent would
+    // leave up to one coarse voxel of it uncovered on one side of the robot: a robot driving
+    // along a street would never map the strip of facade or parked cars there. One more coarse
+    // voxel per axis, with the origin taken by floor, makes the box always hold
+    // [position - half extent, position + half extent].
+    const auto cells = [&](double extent) { return int(std::ceil(extent / coarse_m_ - 1e-6)) + 1; };
+    coarse_cells_ = Int3(cells(2.0 * grid.half_extent_x_m), cells(2.0 * grid.half_extent_y_m),
+                         cells(double(grid.z_max_m) - grid.z_min_m));
     box_offset_m_ = Vec3d(-grid.half_extent_x_m, -grid.half_extent_y_m, grid.z_min_m);
   }
 
@@ -40,11 +45,12 @@ class MapGeometry {
   Vec3d extent_m() const { return coarse_cells_.cast<double>() * coarse_m_; }
 
   // Coarse-lattice index of the box's minimum corner when the robot is at `position_W`. The box
-  // moves in whole coarse voxels (§3.2), so every level's lattice stays aligned.
+  // moves in whole coarse voxels (§3.2), so every level's lattice stays aligned; it holds the
+  // configured box about the robot whole (see the constructor).
   Int3 BoxOriginFor(const Vec3d& position_W) const {
     Vec3d min_m = (position_W + box_offset_m_) / coarse_m_;
-    return Int3(int(std::lround(min_m.x())), int(std::lround(min_m.y())),
-                int(std::lround(min_m.z())));
+    return Int3(int(std::floor(min_m.x() + 1e-9)), int(std::floor(min_m.y() + 1e-9)),
+                int(std::floor(min_m.z() + 1e-9)));
   }
   Int3 LevelOrigin(const Int3& coarse_origin, int level) const {
     return coarse_origin * scale_to_coarse(level);
