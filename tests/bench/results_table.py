@@ -1,0 +1,572 @@
+#!/usr/bin/env python3
+"""Regenerates the results tables of BENCHMARK.md from the JSON files in tests/bench/results/.
+
+usage: results_table.py [--write PAGE | --check PAGE] [--results DIR] [TABLE ...]
+
+  (no option)    print the tables (all, or the ones named) as Markdown
+  --write PAGE   rewrite what stands between each `<!-- results:NAME -->` and the next
+                 `<!-- /results -->` in PAGE (BENCHMARK.md) with the table NAME
+  --check PAGE   exit 1, with a diff, where PAGE differs from what the JSON files give
+
+Every number in a table comes from a file under tests/bench/results/; the layout below says which
+file and field each row reads, its anchor and its target, and the script works out ranges and
+whether the target is met. A file is read as one of:
+  - a rim_bench --benchmark_out file (Google Benchmark JSON): one run per benchmark, the
+    `median` aggregate where there are repetitions; field `real_time` and the counters, and
+    `benchmark` is the run name without `/real_time` (rows match it by prefix);
+  - rim_map's timing.json, rim_eval --json, rim_map --probe's probe.json: one run, the file;
+  - tests/bench/moving_things.sh's moving_things.json: one run per row;
+  - tests/bench/fidelity.sh's fidelity.json: one run per row (the table `fidelity` reads every
+    results/*fidelity*.json);
+  - a long-mode CSV (rim_bench --rim_rss_csv): one run per frame;
+  - a transcription: {"source": {...}, "runs": [...]}, each run in one of the shapes above (a
+    subset of its fields) or a flat record. Results that were only ever written down as text
+    in docs/perf-log.md are kept so, with "transcribed_from" naming the section.
+A file's "source" (date, host, build, recorded_in, command, runs_note, transcribed_from or,
+for a file the tools wrote, described_in) may also sit in
+a sidecar NAME.source.json; rim_bench files take date and commit from their context.
+Python 3 standard library only.
+"""
+import argparse
+import csv
+import difflib
+import glob
+import json
+import os
+import re
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+LOG = "docs/perf-log.md"
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading results files
+
+class Results:
+    def __init__(self, directory):
+        self.directory = directory
+        self.cache = {}
+
+    def load(self, name):
+        if name in self.cache:
+            return self.cache[name]
+        path = os.path.join(self.directory, name)
+        if name.endswith(".csv"):
+            with open(path, newline="") as f:
+                runs = [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
+            obj = {}
+        else:
+            with open(path) as f:
+                obj = json.load(f)
+            runs = _runs(obj)
+        source = dict(obj.get("source", {})) if isinstance(obj, dict) else {}
+        sidecar = os.path.splitext(path)[0] + ".source.json"
+        if not source and os.path.exists(sidecar):
+            with open(sidecar) as f:
+                source = json.load(f)
+        if isinstance(obj, dict) and "benchmarks" in obj and "context" in obj:
+            ctx = obj["context"]
+            source.setdefault("date", ctx.get("date", "")[:10])
+            if "commit" in ctx:
+                source.setdefault("build", ctx["commit"])
+        self.cache[name] = (source, runs)
+        return self.cache[name]
+
+    def values(self, name, field, **where):
+        """The numbers of FIELD (a dotted path) over the runs of NAME that match WHERE."""
+        _, runs = self.load(name)
+        out = []
+        for run in runs:
+            if not all(_match(run, k, v) for k, v in where.items()):
+                continue
+            v = _get(run, field)
+            if v is None:
+                continue
+            out.extend(v if isinstance(v, list) else [v])
+        if not out:
+            raise SystemExit(f"results_table: {name}: no value of {field} where {where}")
+        return [float(x) for x in out]
+
+    def runs(self, name, **where):
+        _, runs = self.load(name)
+        return [r for r in runs if all(_match(r, k, v) for k, v in where.items())]
+
+
+def _number(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return text
+
+
+def _runs(obj):
+    if isinstance(obj, list):                      # moving_things.json
+        return obj
+    if "runs" in obj:                               # a transcription
+        return obj["runs"]
+    if "benchmarks" in obj:                         # rim_bench --benchmark_out
+        medians, singles = {}, {}
+        for b in obj["benchmarks"]:
+            name = b.get("run_name", b["name"])
+            if b.get("aggregate_name") == "median":
+                medians[name] = b
+            elif b.get("run_type", "iteration") == "iteration" and "aggregate_name" not in b:
+                singles.setdefault(name, b)
+        out = []
+        for name in dict.fromkeys(list(singles) + list(medians)):
+            run = dict(medians.get(name, singles.get(name)))
+            run["benchmark"] = name.replace("/real_time", "")
+            out.append(run)
+        return out
+    if "rows" in obj:                               # fidelity.json
+        return [dict(r, dataset=obj.get("dataset"), preset=obj.get("preset")) for r in obj["rows"]]
+    return [obj]                                    # timing.json, rim_eval --json, probe.json
+
+
+def _get(run, field):
+    v = run
+    for part in field.split("."):
+        if not isinstance(v, dict) or part not in v:
+            return None
+        v = v[part]
+    return v
+
+
+def _match(run, key, want):
+    if key == "benchmark":
+        name = run.get("benchmark", "")
+        return name == want or name.startswith(want + "/")
+    return _get(run, key) == want
+
+
+# ----------------------------------------------------------------------------------------------
+# Formatting
+
+def fmt_range(values, digits=1, scale=1.0, suffix="", signed=False):
+    lo, hi = min(values) * scale, max(values) * scale
+    sign = "+" if signed else ""
+    a, b = f"{lo:{sign}.{digits}f}", f"{hi:{sign}.{digits}f}"
+    return (a if a == b else f"{a} to {b}" if signed else f"{a}–{b}") + suffix
+
+
+def status(values, target):
+    """'yes', 'no', or 'in N of M runs' for a target (op, bound)."""
+    if target is None:
+        return "–"
+    op, bound = target
+    ok = [(v <= bound) if op == "<=" else (v >= bound) for v in values]
+    if all(ok):
+        return "yes"
+    if not any(ok):
+        return "no"
+    return f"in {sum(ok)} of {len(ok)}"
+
+
+def slug(title):
+    s = title.strip().lower()
+    s = re.sub(r"[^\w\- ]", "", s)
+    return s.replace(" ", "-")
+
+
+class Row:
+    """One line of a results table.
+
+    value: a function of Results giving the numbers (one per run or observation);
+    anchor: text, or a function of Results giving text; target: (text, (op, bound)) or None;
+    sources: the results files the row reads (numbered in the table's source list).
+    """
+
+    def __init__(self, measure, value, fmt, anchor="–", target=None, sources=()):
+        self.measure, self.value, self.fmt = measure, value, fmt
+        self.anchor, self.target, self.sources = anchor, target, list(sources)
+
+
+def table(results, rows):
+    order = []
+    for row in rows:
+        for s in row.sources:
+            if s not in order:
+                order.append(s)
+    lines = ["| measure | rim now | anchor | target | met | source |",
+             "|---|---|---|---|---|---|"]
+    for row in rows:
+        values = row.value(results)
+        anchor = row.anchor(results) if callable(row.anchor) else row.anchor
+        target_text, target = row.target if row.target else ("–", None)
+        refs = ", ".join(str(order.index(s) + 1) for s in row.sources)
+        lines.append(f"| {row.measure} | {fmt_range(values, **row.fmt)} | {anchor} | "
+                     f"{target_text} | {status(values, target)} | {refs} |")
+    lines.append("")
+    lines.append("Sources (`tests/bench/results/`):")
+    lines.append("")
+    for i, name in enumerate(order, 1):
+        lines.append(f"{i}. {source_line(results, name)}")
+    return "\n".join(lines)
+
+
+def source_line(results, name):
+    src, _ = results.load(name)
+    parts = [f"`{name}`"]
+    when = ", ".join(x for x in (src.get("date"), src.get("host")) if x)
+    if when:
+        parts.append(when)
+    build = []
+    if src.get("build"):
+        b = src["build"]
+        build.append(f"build `{b}`" if re.fullmatch(r"[0-9a-f]{7,40}", b) else f"build {b}")
+    if src.get("recorded_in"):
+        build.append(f"recorded in `{src['recorded_in']}`")
+    if build:
+        parts.append(", ".join(build))
+    text = "; ".join(parts) + "."
+    if src.get("command"):
+        text += f" Command: `{src['command']}`"
+        text += "." if not src.get("runs_note") else f" ({src['runs_note']})."
+    for key, verb in (("transcribed_from", "Transcribed from"), ("described_in", "Described in")):
+        if src.get(key):
+            text += f" {verb} [{LOG}, \"{src[key]}\"]({LOG}#{slug(src[key])})."
+    return text
+
+
+# ----------------------------------------------------------------------------------------------
+# The tables: which file and field each row reads
+
+def ratio_pct(results, name, field, num, den, key="seed"):
+    """Per KEY: 100 * (NUM run's FIELD / DEN run's FIELD - 1)."""
+    out = []
+    for base in results.runs(name, run=den):
+        other = results.runs(name, run=num, **{key: base[key]})
+        for o in other:
+            out.append(100 * (_get(o, field) / _get(base, field) - 1))
+    return out
+
+
+def per_km(mib_per_m):
+    return [v * 1048576 * 1000 / 1e9 for v in mib_per_m]
+
+
+def sum_ranges(results, name, fields):
+    """Per run: the sum of the fields' lows and the sum of their highs."""
+    out = []
+    for run in results.runs(name):
+        vals = [_get(run, f) for f in fields]
+        vals = [v if isinstance(v, list) else [v] for v in vals]
+        out += [sum(min(v) for v in vals), sum(max(v) for v in vals)]
+    return out
+
+
+def moving_c_l1_pct(results, name):
+    out = []
+    for static in results.runs(name, city="static"):
+        for on in results.runs(name, city="moving", filter=True, streamed=False,
+                               seed=static["seed"], preset=static["preset"]):
+            out.append(100 * (on["c_l1_cm"] / static["c_l1_cm"] - 1))
+    return out
+
+
+def moving_gap(results, name, **where):
+    out = []
+    for r in results.runs(name, city="moving", **where):
+        if "floater_pct" not in r:
+            continue
+        gap = r.get("strict_minus_acc_cm")
+        out.append(gap if gap is not None else r["strict_acc_cm"] - r["acc_cm"])
+    return out
+
+
+F1 = {"digits": 1}
+F2 = {"digits": 2}
+F3 = {"digits": 3}
+
+CITY120 = "2026-11-22-rim-map-city120.json"
+FAR = "2026-11-27-frame-far.json"
+REFRESH = "2026-11-27-rim-map-refresh.json"
+QUERY = "2026-11-26-query.json"
+STREAMED = "2026-11-27-streamed-city.json"
+HELDOUT = "2026-11-24-held-out-quality.json"
+REFERENCE = "2026-11-22-reference-trainer.json"
+PROBE = "2026-11-26-planner-probe.json"
+LOAD = "2026-11-27-load.json"
+MESHING = "2026-11-25-meshing.json"
+BASELINE = "2026-11-22-default.json"
+MEMORY = "2026-11-24-memory.json"
+LONG500 = "2026-11-22-long500-half.maicity_online.csv"
+MOVING = "2026-11-27-moving-things.json"
+CHECKPOINTS = "2026-11-25-checkpoints.json"
+
+TABLES = {
+    "speed": [
+        Row("`rim_map`, 120-frame city, `maicity` (30 iterations), ms a frame",
+            lambda r: r.values(CITY120, "ms_per_frame", preset="maicity"), F1,
+            "paper, RTX 3070 Ti: 253", ("≤ 200", ("<=", 200)), [CITY120]),
+        Row("`rim_map`, 120-frame city, `maicity_online` (10 iterations), ms a frame",
+            lambda r: r.values(CITY120, "ms_per_frame", preset="maicity_online"), F1,
+            "paper, RTX 3070 Ti: 85", ("≤ 80", ("<=", 80)), [CITY120]),
+        Row("`Frame/far/maicity` (facades beyond the box), ms a frame",
+            lambda r: r.values(FAR, "real_time", benchmark="Frame/far/maicity"), {"digits": 0},
+            lambda r: "first build: " + fmt_range(
+                r.values(BASELINE, "real_time", benchmark="Frame/maicity"), digits=0)
+            + " (`Frame/maicity`)", ("≤ 150", ("<=", 150)), [FAR, BASELINE]),
+        Row("`Frame/far/maicity_online`, ms a frame",
+            lambda r: r.values(FAR, "real_time", benchmark="Frame/far/maicity_online"), F1,
+            lambda r: "first build: " + fmt_range(
+                r.values(BASELINE, "real_time", benchmark="Frame/maicity_online"), digits=0)
+            + " (`Frame/maicity_online`)", ("≤ 60", ("<=", 60)), [FAR, BASELINE]),
+        Row("the distance field's refresh in `Frame/far/maicity_online`, ms a frame",
+            lambda r: r.values(FAR, "distance_ms", benchmark="Frame/far/maicity_online"), F1,
+            "–", None, [FAR]),
+        Row("real campus scans, `rim_map --preset campus` (20 iterations), ms a frame",
+            lambda r: r.values(REFRESH, "ms_per_frame", preset="campus"), F1,
+            "–", None, [REFRESH]),
+        Row("distance queries, 1M points, distance only, M points/s",
+            lambda r: [1e9 / v for v in r.values(
+                QUERY, "real_time", benchmark="Query/points:1000000/gradient:0/neural:0")],
+            {"digits": 2, "scale": 1e-6},
+            "–", ("≥ 1", (">=", 1e6)), [QUERY]),
+        Row("distance queries where a planner asks (`QueryPlanner`, 100k points), M points/s",
+            lambda r: [1e8 / v for v in r.values(QUERY, "real_time",
+                                                  benchmark="QueryPlanner/neural:0")],
+            {"digits": 2, "scale": 1e-6}, "–", None, [QUERY]),
+    ],
+    "quality": [
+        Row("C-L1 offline, `maicity`, held-out cities 211, 223, 227, 229, cm",
+            lambda r: r.values(STREAMED, "standard.chamfer_l1_cm", run="offline"), F2,
+            "–", ("≤ 2.0", ("<=", 2.0)), [STREAMED]),
+        Row("C-L1 streamed at 10 Hz beside a planner and a dashboard, above offline, %",
+            lambda r: ratio_pct(r, STREAMED, "standard.chamfer_l1_cm", "streamed", "offline"),
+            {"digits": 1, "signed": True}, "offline", ("≤ +10", ("<=", 10)), [STREAMED]),
+        Row("C-L1 offline, held-out cities 21–23, cm",
+            lambda r: r.values(HELDOUT, "standard.chamfer_l1_cm"), F2,
+            "–", ("≤ 2.0", ("<=", 2.0)), [HELDOUT]),
+        Row("recall (10 cm), held-out cities 21–23, %",
+            lambda r: r.values(HELDOUT, "standard.recall_pct"), F2,
+            "–", ("≥ 98", (">=", 98)), [HELDOUT]),
+        Row("F-score (10 cm), held-out cities 21–23, %",
+            lambda r: r.values(HELDOUT, "standard.fscore_pct"), F2,
+            "–", ("≥ 98.5", (">=", 98.5)), [HELDOUT]),
+        Row("C-L1 of the fast path above the dense reference trainer (e2e city), cm",
+            lambda r: [r.values(REFERENCE, "standard.chamfer_l1_cm", step="fast")[0]
+                       - r.values(REFERENCE, "standard.chamfer_l1_cm", step="reference")[0]],
+            F2, lambda r: "`train.step=reference`: " + fmt_range(
+                r.values(REFERENCE, "standard.chamfer_l1_cm", step="reference"), digits=3),
+            ("≤ 0.2", ("<=", 0.2)), [REFERENCE]),
+    ],
+    "distances": [
+        Row("median \\|error\\|, every bin 0–2 m, cm",
+            lambda r: r.values(PROBE, "median_abs_error_cm_per_bin"), F2,
+            "ESDFs at 10 cm voxels: Voxfield 2.7, FIESTA 4.0, voxblox 6.0 (published)",
+            ("≤ 2 (≤ 4 beyond 0.3 m)", ("<=", 2)), [PROBE]),
+        Row("points more than 10 cm too far, %",
+            lambda r: r.values(PROBE, "too_far_pct"), F2,
+            "–", ("≤ 0.5", ("<=", 0.5)), [PROBE]),
+        Row("points with the wrong sign, %",
+            lambda r: r.values(PROBE, "wrong_sign_pct"), F2,
+            "–", ("≤ 0.5", ("<=", 0.5)), [PROBE]),
+        Row("gradient within 10° of the truth, 0.1–2 m, %",
+            lambda r: r.values(PROBE, "gradient_within_10deg_pct"), F1,
+            "–", ("≥ 95", (">=", 95)), [PROBE]),
+    ],
+    "load": [
+        Row("target load: robot integrates, frames/s",
+            lambda r: r.values(LOAD, "frames_per_s", load="target"), F2,
+            "the robot's rate: 10", ("≥ 9.5", (">=", 9.5)), [LOAD]),
+        Row("target load: median rays trained per frame period, k",
+            lambda r: r.values(LOAD, "median_rays_per_frame_period", load="target"),
+            {"digits": 1, "scale": 1e-3}, "10 iterations of 2048 rays",
+            ("≥ 20.5", (">=", 20480)), [LOAD]),
+        Row("target load: median iterations a frame (of 512 rays)",
+            lambda r: r.values(LOAD, "median_iterations", load="target"), {"digits": 0},
+            "–", None, [LOAD]),
+        Row("target load, full batches (`sampler.paced_rays_per_iteration=0`): median rays "
+            "per frame period, k",
+            lambda r: r.values(LOAD, "median_rays_per_frame_period", load="target, full batches"),
+            {"digits": 1, "scale": 1e-3}, "10 iterations of 2048 rays",
+            ("≥ 20.5", (">=", 20480)), [LOAD]),
+        Row("target load: query p99 (10k points), ms",
+            lambda r: r.values(LOAD, "query_p99_ms", load="target"), F1,
+            "–", ("≤ 50", ("<=", 50)), [LOAD]),
+        Row("target load: tile latency p95, s",
+            lambda r: r.values(LOAD, "tile_p95_ms", load="target"),
+            {"digits": 2, "scale": 1e-3}, "–", ("≤ 2", ("<=", 2000)), [LOAD]),
+        Row("2 robots, 2 planners, 1 dashboard: each robot, frames/s",
+            lambda r: r.values(LOAD, "frames_per_s", load="2 robots"), F2,
+            "–", None, [LOAD]),
+        Row("4 robots, 2 planners, 2 dashboards: each robot, frames/s",
+            lambda r: r.values(LOAD, "frames_per_s", load="4 robots"), F2,
+            "–", None, [LOAD]),
+        Row("2 and 4 robots: query p99, ms",
+            lambda r: r.values(LOAD, "query_p99_ms", load="2 robots")
+            + r.values(LOAD, "query_p99_ms", load="4 robots"), F1,
+            "–", None, [LOAD]),
+        Row("2 and 4 robots: tile latency p95, s",
+            lambda r: r.values(LOAD, "tile_p95_ms", load="2 robots")
+            + r.values(LOAD, "tile_p95_ms", load="4 robots"),
+            {"digits": 2, "scale": 1e-3}, "–", None, [LOAD]),
+    ],
+    "meshing": [
+        Row("a watched session's meshing, push every 10 frames, ms a frame",
+            lambda r: r.values(MESHING, "meshing_ms_per_frame"), F1,
+            "–", ("≤ 20", ("<=", 20)), [MESHING]),
+        Row("a tile re-encoded (its changed blocks meshed, then Draco), ms",
+            lambda r: sum_ranges(r, MESHING, ["tile_mesh_ms", "tile_draco_ms"]), {"digits": 0},
+            "–", ("≤ 50", ("<=", 50)), [MESHING]),
+        Row("`MeshTile`: the fullest 5 cm tile from scratch, ms",
+            lambda r: r.values(MESHING, "mesh_tile_ms"), F1,
+            lambda r: "first build: " + fmt_range(
+                r.values(BASELINE, "real_time", benchmark="MeshTile"), digits=0),
+            ("≤ 400 (no slower than before)", ("<=", 400)), [MESHING, BASELINE]),
+    ],
+    "memory": [
+        Row("global map (sub-map store and deferred rays), GB per km of drive",
+            lambda r: per_km([sum(r.values(MEMORY, f)[0] for f in
+                                  ("store_mib_per_m", "deferred_mib_per_m"))]), F3,
+            "official code: about 11 (40 GB for KITTI 00's 3.7 km)", ("≤ 1.5", ("<=", 1.5)),
+            [MEMORY]),
+        Row("distance field, GB per km of drive",
+            lambda r: r.values(PROBE, "distance_mb_per_m", preset="maicity_online"), F3,
+            "–", None, [PROBE]),
+        Row("RSS less the sub-map store, growth from frame 100 to 499, MiB",
+            lambda r: [(r.values(LONG500, "rss_bytes", frame=499.0)[0]
+                        - r.values(LONG500, "submap_bytes", frame=499.0)[0]
+                        - r.values(LONG500, "rss_bytes", frame=100.0)[0]
+                        + r.values(LONG500, "submap_bytes", frame=100.0)[0]) / 1048576],
+            {"digits": 0}, "–", None, [LONG500]),
+    ],
+    "moving": [
+        Row("floaters (mesh area beyond 20 cm of any true surface), filter off, %",
+            lambda r: r.values(MOVING, "floater_pct", city="moving", filter=False,
+                               streamed=False), F2, "–", None, [MOVING]),
+        Row("floaters, filter on (the default), %",
+            lambda r: r.values(MOVING, "floater_pct", city="moving", filter=True,
+                               streamed=False), F2, "–", ("≤ 0.1", ("<=", 0.1)), [MOVING]),
+        Row("floaters, filter on, streamed at 10 Hz through `rim_server`, %",
+            lambda r: r.values(MOVING, "floater_pct", city="moving", filter=True,
+                               streamed=True), F2, "–", ("≤ 0.1", ("<=", 0.1)), [MOVING]),
+        Row("strict accuracy less accuracy, filter on, cm",
+            lambda r: moving_gap(r, MOVING, filter=True, streamed=False), F2,
+            "–", ("≤ 0.3", ("<=", 0.3)), [MOVING]),
+        Row("C-L1, filter on, above the same city without movers, %",
+            lambda r: moving_c_l1_pct(r, MOVING), {"digits": 1, "signed": True},
+            "the static city", ("≤ +3", ("<=", 3)), [MOVING]),
+        Row("preprocessing with the filter, ms a frame (`maicity_online`)",
+            lambda r: r.values(MOVING, "preprocess_ms", filter=True), F1,
+            lambda r: "filter off: " + fmt_range(r.values(MOVING, "preprocess_ms", filter=False)),
+            None, [MOVING]),
+    ],
+    "checkpoints": [
+        Row("a periodic checkpoint of a 30 s city drive at 10 Hz, s",
+            lambda r: [v / 3 for v in r.values(CHECKPOINTS, "checkpoints_total_s",
+                                               build="writes from the grids")], F2,
+            lambda r: "whole map written each time: " + fmt_range(
+                [v / 3 for v in r.values(CHECKPOINTS, "checkpoints_total_s",
+                                         build="whole map")]),
+            None, [CHECKPOINTS]),
+        Row("the robot's rate with checkpoints every 100 frames, frames/s",
+            lambda r: r.values(CHECKPOINTS, "frames_per_s", build="writes from the grids"), F2,
+            lambda r: "no checkpoints: " + fmt_range(
+                r.values(CHECKPOINTS, "frames_per_s", build="no checkpoints"), digits=2),
+            None, [CHECKPOINTS]),
+        Row("the last checkpoint on disk, MB",
+            lambda r: r.values(CHECKPOINTS, "last_checkpoint_mb", build="changed sub-maps"),
+            {"digits": 0}, lambda r: "whole map: " + fmt_range(
+                r.values(CHECKPOINTS, "last_checkpoint_mb", build="whole map"), digits=0),
+            None, [CHECKPOINTS]),
+        Row("`Session/Save` (`rim_bench`), ms",
+            lambda r: r.values(CHECKPOINTS, "real_time", benchmark="Session/Save"),
+            {"digits": 0}, "–", None, [CHECKPOINTS]),
+    ],
+}
+
+
+def fidelity_table(results):
+    head = ("| city, host, date | run | ms/frame | peak MiB | Acc (cm) | Comp (cm) | C-L1 (cm) "
+            "| recall % | F % | floaters % |\n|---|---|---|---|---|---|---|---|---|---|")
+    names = sorted(os.path.basename(p) for p in
+                   glob.glob(os.path.join(results.directory, "*fidelity*.json"))
+                   if not p.endswith(".source.json"))
+    if not names:
+        return head + "\n\n(numbers being measured, see docs/perf-log.md)"
+    lines = [head]
+    sources = []
+    for i, name in enumerate(names, 1):
+        src, runs = results.load(name)
+        city = src.get("city") or os.path.basename(str(runs[0].get("dataset", "")))
+        where = ", ".join(x for x in (city, src.get("host"), src.get("date")) if x)
+        for run in runs:
+            def n(key, spec):
+                v = run.get(key)
+                return "n/a" if v is None else format(v, spec)
+            lines.append(
+                f"| {where} ({i}) | {run.get('label', run.get('run'))} | {n('ms_per_frame', '.1f')} "
+                f"| {n('peak_mib', '.0f')} | {n('acc_cm', '.2f')} | {n('comp_cm', '.2f')} "
+                f"| {n('c_l1_cm', '.2f')} | {n('recall_pct', '.2f')} | {n('f_pct', '.2f')} "
+                f"| {format(100 * run['floater_share'], '.2f') if run.get('floater_share') is not None else 'n/a'} |")
+        sources.append(f"{i}. {source_line(results, name)}")
+    return "\n".join(lines + ["", "Sources (`tests/bench/results/`):", ""] + sources)
+
+
+def render(results, name):
+    if name == "fidelity":
+        return fidelity_table(results)
+    return table(results, TABLES[name])
+
+
+ALL = list(TABLES) + ["fidelity"]
+MARKER = re.compile(r"(<!-- results:([\w-]+) -->\n)(.*?)(<!-- /results -->)", re.S)
+
+
+def rewrite(page_text, results, only):
+    def sub(m):
+        name = m.group(2)
+        if name not in ALL:
+            raise SystemExit(f"results_table: unknown table {name!r} in the page")
+        if only and name not in only:
+            return m.group(0)
+        return f"{m.group(1)}\n{render(results, name)}\n\n{m.group(4)}"
+    return MARKER.sub(sub, page_text)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--write", metavar="PAGE")
+    g.add_argument("--check", metavar="PAGE")
+    p.add_argument("--results", default=RESULTS, help="the results folder (default: %(default)s)")
+    p.add_argument("tables", nargs="*", metavar="TABLE",
+                   help="tables to print or rewrite: " + ", ".join(ALL))
+    a = p.parse_args()
+    for name in a.tables:
+        if name not in ALL:
+            p.error(f"unknown table {name!r} (tables: {', '.join(ALL)})")
+    results = Results(a.results)
+    if not (a.write or a.check):
+        for name in a.tables or ALL:
+            print(f"<!-- results:{name} -->\n\n{render(results, name)}\n\n<!-- /results -->\n")
+        return 0
+    page = a.write or a.check
+    with open(page) as f:
+        old = f.read()
+    found = {m.group(2) for m in MARKER.finditer(old)}
+    missing = [t for t in (a.tables or ALL) if t not in found]
+    if missing:
+        print(f"results_table: {page} has no markers for {', '.join(missing)}", file=sys.stderr)
+        return 1
+    new = rewrite(old, results, a.tables)
+    if a.write:
+        if new != old:
+            with open(page, "w") as f:
+                f.write(new)
+        return 0
+    if new != old:
+        sys.stdout.writelines(difflib.unified_diff(
+            old.splitlines(True), new.splitlines(True), page, page + " (from the JSON)"))
+        print(f"results_table: {page} differs from tests/bench/results/; run "
+              f"`python3 tests/bench/results_table.py --write {page}`", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
