@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 #include <utility>
@@ -25,6 +26,7 @@
 #include "rim/eval/box_union.h"
 #include "rim/eval/mesh_eval.h"
 #include "rim/io/dataset.h"
+#include "rim/io/json.h"
 #include "rim/io/mesh_io.h"
 
 namespace {
@@ -205,73 +207,70 @@ absl::StatusOr<std::shared_ptr<const rim::eval::BoxUnion>> LoadBoxUnion(const Ar
   return std::make_shared<const rim::eval::BoxUnion>(*std::move(box_union));
 }
 
-std::string JsonString(const std::string& s) {
-  std::string out = "\"";
-  for (unsigned char c : s) {
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += static_cast<char>(c);
-    } else if (c < 0x20) {
-      out += absl::StrFormat("\\u%04x", c);
-    } else {
-      out += static_cast<char>(c);
-    }
-  }
-  return out + "\"";
-}
+using rim::io::JsonNumber;
+using Json = nlohmann::ordered_json;
 
-// JSON has no NaN: an undefined value (no prediction point kept) is null.
-std::string JsonNumber(double v, int decimals) {
-  return std::isfinite(v) ? absl::StrFormat("%.*f", decimals, v) : "null";
-}
-
-std::string MetricsJson(const Metrics& m) {
-  return absl::StrCat("{\"accuracy_cm\": ", JsonNumber(100 * m.accuracy_m, 4),
-                      ", \"completeness_cm\": ", JsonNumber(100 * m.completeness_m, 4),
-                      ", \"chamfer_l1_cm\": ", JsonNumber(100 * m.chamfer_l1_m, 4),
-                      ", \"precision_pct\": ", JsonNumber(100 * m.precision, 3),
-                      ", \"recall_pct\": ", JsonNumber(100 * m.recall, 3),
-                      ", \"fscore_pct\": ", JsonNumber(100 * m.fscore, 3), "}");
+Json MetricsJson(const Metrics& m) {
+  return {{"accuracy_cm", JsonNumber(100 * m.accuracy_m, 4)},
+          {"completeness_cm", JsonNumber(100 * m.completeness_m, 4)},
+          {"chamfer_l1_cm", JsonNumber(100 * m.chamfer_l1_m, 4)},
+          {"precision_pct", JsonNumber(100 * m.precision, 3)},
+          {"recall_pct", JsonNumber(100 * m.recall, 3)},
+          {"fscore_pct", JsonNumber(100 * m.fscore, 3)}};
 }
 
 // A point cloud has no area: null.
-std::string AreaJson(InputKind kind, double area_m2) {
-  return kind == InputKind::kPoints ? "null" : JsonNumber(area_m2, 4);
+Json AreaJson(InputKind kind, double area_m2) {
+  return kind == InputKind::kPoints ? Json(nullptr) : JsonNumber(area_m2, 4);
 }
 
 // The box union of --box and --seq, or null.
-std::string BoxJson(const Args& args) {
+Json BoxJson(const Args& args) {
   const rim::eval::BoxUnion* u = args.options.box_union.get();
-  if (u == nullptr) return "null";
-  return absl::StrCat("{\"hx\": ", JsonNumber(u->hx(), 4), ", \"hy\": ", JsonNumber(u->hy(), 4),
-                      ", \"z_min\": ", JsonNumber(u->z_min(), 4),
-                      ", \"z_max\": ", JsonNumber(u->z_max(), 4), ", \"frames\": ", u->size(),
-                      ", \"seq\": ", JsonString(args.seq_dir), "}");
+  if (u == nullptr) return nullptr;
+  return {{"hx", JsonNumber(u->hx(), 4)},
+          {"hy", JsonNumber(u->hy(), 4)},
+          {"z_min", JsonNumber(u->z_min(), 4)},
+          {"z_max", JsonNumber(u->z_max(), 4)},
+          {"frames", u->size()},
+          {"seq", args.seq_dir}};
 }
 
+// One object, each top-level key on its own line and the objects within on one line each.
+// Undefined values (no prediction point kept: NaN) are null, as JSON has no NaN.
 std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
   const EvalOptions& o = args.options;
-  return absl::StrCat(
-      "{\n  \"prediction\": ", JsonString(args.pred_path),
-      ",\n  \"ground_truth\": ", JsonString(args.gt_path), ",\n  \"pred_kind\": \"",
-      InputKindName(r.pred_kind), "\", \"gt_kind\": \"", InputKindName(r.gt_kind), "\"",
-      ",\n  \"standard\": ", MetricsJson(r.standard), ",\n  \"strict\": ", MetricsJson(r.strict),
-      ",\n  \"points\": {\"pred_samples\": ", r.pred_samples, ", \"gt_samples\": ", r.gt_samples,
-      ", \"pred\": ", r.pred_points, ", \"gt\": ", r.gt_points,
-      ", \"pred_dropped\": ", r.pred_dropped, ", \"gt_capped\": ", r.gt_capped, "}",
-      ",\n  \"area_m2\": {\"pred\": ", AreaJson(r.pred_kind, r.pred_area_m2),
-      ", \"gt\": ", AreaJson(r.gt_kind, r.gt_area_m2), "}",
-      ",\n  \"protocol\": {\"samples\": ", o.samples,
-      ", \"voxel_cm\": ", JsonNumber(100 * o.voxel_m, 3),
-      ", \"drop_cm\": ", JsonNumber(100 * o.drop_m, 3),
-      ", \"cap_cm\": ", JsonNumber(100 * o.cap_m, 3),
-      ", \"fscore_threshold_cm\": ", JsonNumber(100 * o.fscore_m, 3),
-      ", \"crop_to_gt\": ", o.crop_to_gt ? "true" : "false",
-      ", \"crop_margin_cm\": ", JsonNumber(100 * o.crop_margin_m, 3), ", \"seed\": ", o.seed,
-      ", \"floater_cm\": ", JsonNumber(100 * o.floater_m, 3), "}", ",\n  \"box\": ", BoxJson(args),
-      ",\n  \"seconds\": ", JsonNumber(seconds, 3),
-      ",\n  \"floater_share\": ", JsonNumber(r.floater_share, 6),
-      ", \"floater_area_m2\": ", AreaJson(r.pred_kind, r.floater_area_m2), "\n}\n");
+  const Json json = {{"prediction", args.pred_path},
+                     {"ground_truth", args.gt_path},
+                     {"pred_kind", InputKindName(r.pred_kind)},
+                     {"gt_kind", InputKindName(r.gt_kind)},
+                     {"standard", MetricsJson(r.standard)},
+                     {"strict", MetricsJson(r.strict)},
+                     {"points",
+                      {{"pred_samples", r.pred_samples},
+                       {"gt_samples", r.gt_samples},
+                       {"pred", r.pred_points},
+                       {"gt", r.gt_points},
+                       {"pred_dropped", r.pred_dropped},
+                       {"gt_capped", r.gt_capped}}},
+                     {"area_m2",
+                      {{"pred", AreaJson(r.pred_kind, r.pred_area_m2)},
+                       {"gt", AreaJson(r.gt_kind, r.gt_area_m2)}}},
+                     {"protocol",
+                      {{"samples", o.samples},
+                       {"voxel_cm", JsonNumber(100 * o.voxel_m, 3)},
+                       {"drop_cm", JsonNumber(100 * o.drop_m, 3)},
+                       {"cap_cm", JsonNumber(100 * o.cap_m, 3)},
+                       {"fscore_threshold_cm", JsonNumber(100 * o.fscore_m, 3)},
+                       {"crop_to_gt", o.crop_to_gt},
+                       {"crop_margin_cm", JsonNumber(100 * o.crop_margin_m, 3)},
+                       {"seed", o.seed},
+                       {"floater_cm", JsonNumber(100 * o.floater_m, 3)}}},
+                     {"box", BoxJson(args)},
+                     {"seconds", JsonNumber(seconds, 3)},
+                     {"floater_share", JsonNumber(r.floater_share, 6)},
+                     {"floater_area_m2", AreaJson(r.pred_kind, r.floater_area_m2)}};
+  return rim::io::DumpJson(json);
 }
 
 std::string TableRow(const char* name, const Metrics& m) {

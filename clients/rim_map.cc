@@ -33,6 +33,7 @@
 #include "rim/config/config.h"
 #include "rim/eval/distance_probe.h"
 #include "rim/io/dataset.h"
+#include "rim/io/json.h"
 #include "rim/io/mesh_io.h"
 #include "rim/io/ply_points.h"
 #include "rim/map/submap_store.h"
@@ -112,19 +113,6 @@ double PeakRssMb() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
   return double(u.ru_maxrss) / 1024.0;  // kilobytes on Linux
-}
-
-std::string JsonString(const std::string& s) {
-  std::string out = "\"";
-  for (char c : s) {
-    if (c == '"' || c == '\\') out += '\\';
-    if (c == '\n') {
-      out += "\\n";
-      continue;
-    }
-    out += c;
-  }
-  return out + "\"";
 }
 
 void ProgressBar(size_t done, size_t total, double ms_per_frame, float loss) {
@@ -272,62 +260,52 @@ absl::Status Run(const Args& args) {
       (long long)final_stats.transient_deferred_removed,
       (long long)final_stats.transient_departed_removed);
 
-  std::string timing = "{\n  \"stages_ms_per_frame\": {";
-  for (const Row& r : rows)
-    absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / frames);
-  timing.resize(timing.size() - 2);
-  timing += "},\n  \"stages_ms_per_iteration\": {";
-  for (const Row& r : rows)
-    if (r.per_iteration)
-      absl::StrAppendFormat(&timing, "\"%s\": %.4f, ", r.name, 1e3 * r.seconds / iters);
-  timing.resize(timing.size() - 2);
-  absl::StrAppendFormat(
-      &timing,
-      "},\n  \"ms_per_frame\": %.3f,\n  \"frames_per_s\": %.4f,\n  \"frames\": %.0f,\n"
-      "  \"iterations_per_frame\": %.3f,\n  \"peak_rss_mb\": %.1f,\n"
-      "  \"device_memory_mb\": null,\n  \"mesh_s\": %.3f,\n"
-      "  \"transient_buffer_removed\": %lld,\n  \"transient_deferred_removed\": %lld,\n"
-      "  \"transient_departed_removed\": %lld,\n"
-      "  \"rss_mb_per_frame\": [",
-      1e3 * sum.total_s / frames, frames / wall_s, frames, iters / frames, PeakRssMb(), mesh_s,
-      (long long)final_stats.transient_buffer_removed,
-      (long long)final_stats.transient_deferred_removed,
-      (long long)final_stats.transient_departed_removed);
-  for (size_t i = 0; i < rss_mb.size(); ++i)
-    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", rss_mb[i]);
-  // The global map grows with the area explored; RSS minus it should stay flat.
-  timing += "],\n  \"submap_mb_per_frame\": [";
-  for (size_t i = 0; i < submap_mb.size(); ++i)
-    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", submap_mb[i]);
-  // The deferred rays (seen outside the box, waiting for it) are part of the global map too.
-  timing += "],\n  \"deferred_mb_per_frame\": [";
-  for (size_t i = 0; i < deferred_mb.size(); ++i)
-    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", deferred_mb[i]);
-  timing += "],\n  \"distance_mb_per_frame\": [";
-  for (size_t i = 0; i < distance_mb.size(); ++i)
-    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", distance_mb[i]);
-  timing += "],\n  \"ms_per_frame_series\": [";
-  for (size_t i = 0; i < ms_per_frame.size(); ++i)
-    absl::StrAppendFormat(&timing, "%s%.1f", i ? ", " : "", ms_per_frame[i]);
-  timing += "]\n}\n";
+  // timing.json: the table above, the memory and the time of every frame.
+  using Json = nlohmann::ordered_json;
+  using io::JsonNumber;
+  Json per_frame = Json::object(), per_iteration = Json::object();
+  for (const Row& r : rows) {
+    per_frame[r.name] = JsonNumber(1e3 * r.seconds / frames, 4);
+    if (r.per_iteration) per_iteration[r.name] = JsonNumber(1e3 * r.seconds / iters, 4);
+  }
+  auto series = [](const std::vector<double>& values) {
+    Json out = Json::array();
+    for (double v : values) out.push_back(JsonNumber(v, 1));
+    return out;
+  };
+  const Json timing = {
+      {"stages_ms_per_frame", per_frame},
+      {"stages_ms_per_iteration", per_iteration},
+      {"ms_per_frame", JsonNumber(1e3 * sum.total_s / frames, 3)},
+      {"frames_per_s", JsonNumber(frames / wall_s, 4)},
+      {"frames", last - first},
+      {"iterations_per_frame", JsonNumber(iters / frames, 3)},
+      {"peak_rss_mb", JsonNumber(PeakRssMb(), 1)},
+      {"device_memory_mb", nullptr},
+      {"mesh_s", JsonNumber(mesh_s, 3)},
+      {"transient_buffer_removed", final_stats.transient_buffer_removed},
+      {"transient_deferred_removed", final_stats.transient_deferred_removed},
+      {"transient_departed_removed", final_stats.transient_departed_removed},
+      {"rss_mb_per_frame", series(rss_mb)},
+      // The global map grows with the area explored; RSS minus it should stay flat.
+      {"submap_mb_per_frame", series(submap_mb)},
+      // The deferred rays (seen outside the box, waiting for it) are part of the global map too.
+      {"deferred_mb_per_frame", series(deferred_mb)},
+      {"distance_mb_per_frame", series(distance_mb)},
+      {"ms_per_frame_series", series(ms_per_frame)}};
 
-  std::string run = "{\n  \"rim_version\": " + JsonString(kRimVersion) +
-                    ",\n  \"libtorch_version\": " + JsonString(TorchVersion()) +
-                    ",\n  \"dataset\": " + JsonString(args.dataset) +
-                    ",\n  \"layout\": " + JsonString(io::LayoutName(dataset->layout())) +
-                    absl::StrFormat(",\n  \"frames\": [%ld, %ld]", first, last) +
-                    ",\n  \"config\": {";
-  bool first_key = true;
+  // run.json: versions, the frames mapped and the whole config, one key a line.
+  Json config_json = Json::object();
   for (absl::string_view line : absl::StrSplit(config.ToString(), '\n', absl::SkipEmpty())) {
     std::vector<std::string> kv = absl::StrSplit(line, absl::MaxSplits(" = ", 1));
-    if (kv.size() != 2) continue;
-    absl::StrAppend(&run, first_key ? "\n    " : ",\n    ", JsonString(kv[0]), ": ",
-                    JsonString(kv[1]));
-    first_key = false;
+    if (kv.size() == 2) config_json[kv[0]] = kv[1];
   }
-  run += "\n  }\n}\n";
+  const Json run = {{"rim_version", kRimVersion}, {"libtorch_version", TorchVersion()},
+                    {"dataset", args.dataset},    {"layout", io::LayoutName(dataset->layout())},
+                    {"frames", {first, last}},    {"config", config_json}};
   for (const auto& [name, text] :
-       {std::pair<std::string, std::string>{"timing.json", timing}, {"run.json", run}}) {
+       {std::pair<std::string, std::string>{"timing.json", io::DumpJson(timing)},
+        {"run.json", io::DumpJson(run, 2)}}) {
     std::ofstream f(args.out + "/" + name);
     f << text;
     if (!f) return absl::InternalError(absl::StrCat("cannot write ", args.out, "/", name));

@@ -14,6 +14,7 @@
 #include "gtest/gtest.h"
 #include "rim/io/depth.h"
 #include "rim/io/file_util.h"
+#include "rim/io/json.h"
 #include "rim/io/kitti.h"
 #include "rim/io/lzf.h"
 #include "rim/io/pcd.h"
@@ -485,6 +486,57 @@ TEST(IoFormatsTest, NaturalOrder) {
   EXPECT_TRUE(NaturalLess("000009.bin", "000010.bin"));
   EXPECT_TRUE(NaturalLess("a", "b"));
   EXPECT_FALSE(NaturalLess("a", "a"));
+}
+
+// --- JSON written (DumpJson, JsonNumber)
+// -----------------------------------------------------------
+
+TEST(JsonWriterTest, EscapesEveryControlCharacter) {
+  // A path may hold any byte but NUL: quotes, backslashes, tabs, newlines, \x01, \x1f, DEL.
+  std::string path = "/tmp/a\"b\\c\td\ne\rf";
+  for (int c = 1; c < 0x20; ++c) path += char(c);
+  path += "\x7f/g";
+  const nlohmann::ordered_json value = {{"path", path}, {"list", {path, 1}}};
+  for (int inline_depth : {0, 1, 2}) {
+    const std::string text = DumpJson(value, inline_depth);
+    for (char c : text) EXPECT_FALSE(static_cast<unsigned char>(c) < 0x20 && c != '\n') << text;
+    absl::StatusOr<nlohmann::json> back = ParseJson(text, "dump.json");
+    ASSERT_TRUE(back.ok()) << back.status() << "\n" << text;
+    EXPECT_EQ((*back)["path"], path);
+    EXPECT_EQ((*back)["list"][0], path);
+  }
+  // Bytes that are not UTF-8 become U+FFFD rather than an exception or invalid output.
+  const std::string text = DumpJson({{"path", std::string("/tmp/\xff\xfe")}});
+  EXPECT_TRUE(ParseJson(text, "dump.json").ok()) << text;
+}
+
+TEST(JsonWriterTest, Layout) {
+  const nlohmann::ordered_json value = {{"b", 1},
+                                        {"a", {{"x", 0.5}, {"y", nullptr}}},
+                                        {"series", {1.5, 2.0, 3.25}},
+                                        {"empty", nlohmann::ordered_json::object()},
+                                        {"rows", {{{"k", 1}}, {{"k", 2}}}}};
+  EXPECT_EQ(DumpJson(value),
+            "{\n  \"b\": 1,\n  \"a\": {\"x\": 0.5, \"y\": null},\n  \"series\": [1.5, 2.0, 3.25],\n"
+            "  \"empty\": {},\n  \"rows\": [{\"k\": 1}, {\"k\": 2}]\n}\n");
+  EXPECT_EQ(DumpJson(value, 2),
+            "{\n  \"b\": 1,\n  \"a\": {\n    \"x\": 0.5,\n    \"y\": null\n  },\n"
+            "  \"series\": [1.5, 2.0, 3.25],\n  \"empty\": {},\n"
+            "  \"rows\": [\n    {\"k\": 1},\n    {\"k\": 2}\n  ]\n}\n");
+  EXPECT_EQ(DumpJson(nlohmann::ordered_json::array()), "[]\n");
+  EXPECT_EQ(DumpJson(3), "3\n");
+}
+
+TEST(JsonWriterTest, NumbersRoundedOrNull) {
+  EXPECT_EQ(JsonNumber(100.0, 3).dump(), "100.0");
+  EXPECT_EQ(JsonNumber(2.999999, 4).dump(), "3.0");
+  EXPECT_EQ(JsonNumber(0.123456789, 4).dump(), "0.1235");
+  EXPECT_EQ(JsonNumber(-1.00049, 3).dump(), "-1.0");
+  EXPECT_EQ(JsonNumber(12345.678, 1).dump(), "12345.7");
+  EXPECT_EQ(JsonNumber(1e300, 4).dump(), "1e+300");
+  EXPECT_TRUE(JsonNumber(std::nan(""), 3).is_null());
+  EXPECT_TRUE(JsonNumber(std::numeric_limits<double>::infinity(), 3).is_null());
+  EXPECT_TRUE(JsonNumber(-std::numeric_limits<double>::infinity(), 3).is_null());
 }
 
 }  // namespace

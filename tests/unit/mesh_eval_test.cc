@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
 #include <tuple>
@@ -720,91 +721,17 @@ TEST(MeshEvalFloaterTest, BadThresholdIsNamed) {
 
 // --- The rim_eval command line -------------------------------------------------------------------
 
-// A minimal JSON syntax check (RFC 8259 grammar, no semantics), enough to catch broken output.
-class JsonChecker {
- public:
-  explicit JsonChecker(const std::string& s) : s_(s) {}
-  bool Valid() {
-    if (!Value()) return false;
-    Space();
-    return i_ == s_.size();
-  }
+// rim_eval's --json output parsed by nlohmann (keys in their order), or a discarded value when it
+// is not one valid JSON document.
+nlohmann::ordered_json ParseOut(const std::string& out) {
+  return nlohmann::ordered_json::parse(out, nullptr, /*allow_exceptions=*/false);
+}
 
- private:
-  void Space() {
-    while (i_ < s_.size() && std::isspace(static_cast<unsigned char>(s_[i_]))) ++i_;
-  }
-  bool Literal(const char* word) {
-    const std::string w = word;
-    if (s_.compare(i_, w.size(), w) != 0) return false;
-    i_ += w.size();
-    return true;
-  }
-  bool String() {
-    if (s_[i_] != '"') return false;
-    for (++i_; i_ < s_.size(); ++i_) {
-      if (s_[i_] == '\\') {
-        ++i_;
-      } else if (s_[i_] == '"') {
-        ++i_;
-        return true;
-      } else if (static_cast<unsigned char>(s_[i_]) < 0x20) {
-        return false;
-      }
-    }
-    return false;
-  }
-  bool Number() {
-    const size_t start = i_;
-    if (s_[i_] == '-') ++i_;
-    while (i_ < s_.size() && (std::isdigit(static_cast<unsigned char>(s_[i_])) || s_[i_] == '.' ||
-                              s_[i_] == 'e' || s_[i_] == 'E' || s_[i_] == '+' || s_[i_] == '-')) {
-      ++i_;
-    }
-    char* end = nullptr;
-    const std::string text = s_.substr(start, i_ - start);
-    std::strtod(text.c_str(), &end);
-    return !text.empty() && end == text.c_str() + text.size();
-  }
-  bool Value() {
-    Space();
-    if (i_ >= s_.size()) return false;
-    const char c = s_[i_];
-    if (c == '{' || c == '[') {
-      const char close = c == '{' ? '}' : ']';
-      ++i_;
-      Space();
-      if (i_ < s_.size() && s_[i_] == close) return ++i_, true;
-      while (true) {
-        if (c == '{') {
-          Space();
-          if (!String()) return false;
-          Space();
-          if (i_ >= s_.size() || s_[i_++] != ':') return false;
-        }
-        if (!Value()) return false;
-        Space();
-        if (i_ >= s_.size()) return false;
-        if (s_[i_] == close) return ++i_, true;
-        if (s_[i_++] != ',') return false;
-      }
-    }
-    if (c == '"') return String();
-    if (c == 't') return Literal("true");
-    if (c == 'f') return Literal("false");
-    if (c == 'n') return Literal("null");
-    return Number();
-  }
-
-  const std::string& s_;
-  size_t i_ = 0;
-};
-
-TEST(JsonCheckerTest, AcceptsAndRejects) {
-  EXPECT_TRUE(JsonChecker(R"({"a": [1, -2.5e3, null, true], "b": {"c": "x\"y"}})").Valid());
-  EXPECT_FALSE(JsonChecker(R"({"a": nan})").Valid());
-  EXPECT_FALSE(JsonChecker(R"({"a": 1,})").Valid());
-  EXPECT_FALSE(JsonChecker(R"({"a": 1} x)").Valid());
+// The keys of an object, in their order.
+std::vector<std::string> Keys(const nlohmann::ordered_json& object) {
+  std::vector<std::string> keys;
+  for (auto it = object.begin(); it != object.end(); ++it) keys.push_back(it.key());
+  return keys;
 }
 
 // The rim_eval binary sits in clients/ of the same build tree (RIM_EVAL_BIN overrides).
@@ -859,13 +786,27 @@ TEST_F(RimEvalCliTest, PrintsTable) {
 TEST_F(RimEvalCliTest, PrintsJson) {
   const RunResult r = RunRimEval(pred_ + " " + gt_ + " --json --samples=20000 --threads 1");
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
-  for (const char* key :
-       {"\"standard\"", "\"strict\"", "\"accuracy_cm\"", "\"completeness_cm\"", "\"chamfer_l1_cm\"",
-        "\"precision_pct\"", "\"recall_pct\"", "\"fscore_pct\"", "\"points\"", "\"protocol\""}) {
-    EXPECT_NE(r.out.find(key), std::string::npos) << key << " missing from:\n" << r.out;
+  const nlohmann::ordered_json j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  EXPECT_EQ(Keys(j),
+            (std::vector<std::string>{"prediction", "ground_truth", "pred_kind", "gt_kind",
+                                      "standard", "strict", "points", "area_m2", "protocol", "box",
+                                      "seconds", "floater_share", "floater_area_m2"}))
+      << r.out;
+  for (const char* side : {"standard", "strict"}) {
+    EXPECT_EQ(Keys(j[side]),
+              (std::vector<std::string>{"accuracy_cm", "completeness_cm", "chamfer_l1_cm",
+                                        "precision_pct", "recall_pct", "fscore_pct"}))
+        << r.out;
   }
-  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+  EXPECT_EQ(j["prediction"], pred_);
+  EXPECT_EQ(j["standard"]["fscore_pct"], 100.0) << r.out;
+  // 3 cm off (a little more after voxel averaging), rounded as before to 4 decimals of a cm.
+  const double accuracy = j["standard"]["accuracy_cm"];
+  EXPECT_NEAR(accuracy, 3.0, 0.25) << r.out;
+  EXPECT_EQ(accuracy, std::round(accuracy * 1e4) / 1e4) << r.out;
+  // Each top-level key on its own line, the objects within on one.
+  EXPECT_NE(r.out.find("\n  \"area_m2\": {\"pred\": "), std::string::npos) << r.out;
 }
 
 TEST_F(RimEvalCliTest, WritesMissesAndFloaters) {
@@ -914,9 +855,17 @@ TEST_F(RimEvalCliTest, ReportsFloaters) {
       << r.out;
   r = RunRimEval(pred_ + " " + gt_ + " --json --samples 20000");
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_NE(r.out.find("\"floater_cm\": 20.000}"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("\"floater_share\": 0.000000, \"floater_area_m2\": 0.0000\n}"),
-            std::string::npos)
+  nlohmann::ordered_json j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  EXPECT_EQ(Keys(j["protocol"]).back(), "floater_cm") << r.out;
+  EXPECT_EQ(j["protocol"]["floater_cm"], 20.0) << r.out;
+  EXPECT_EQ(j["floater_share"], 0.0) << r.out;
+  EXPECT_EQ(j["floater_area_m2"], 0.0) << r.out;
+  // The keys before them are unchanged, in their order; the new ones come last.
+  std::vector<std::string> keys = Keys(j);
+  ASSERT_GE(keys.size(), 3u);
+  EXPECT_EQ(std::vector<std::string>(keys.end() - 3, keys.end()),
+            (std::vector<std::string>{"seconds", "floater_share", "floater_area_m2"}))
       << r.out;
 
   // A 1 m^2 patch 50 cm above the 4 m^2 ground: a fifth of the area (uncropped, as the GT is
@@ -925,13 +874,10 @@ TEST_F(RimEvalCliTest, ReportsFloaters) {
   ASSERT_TRUE(WriteMeshPly(floating, Merged(PlaneZ(0.03f, 0, 2, 0, 2), PatchZ(0.5f))).ok());
   r = RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000 --threads 1");
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
-  // The keys before them are unchanged, in their order; the new ones come last.
-  const size_t seconds = r.out.find("\"seconds\": ");
-  ASSERT_NE(seconds, std::string::npos) << r.out;
-  EXPECT_GT(r.out.find("\"floater_share\": "), seconds) << r.out;
-  EXPECT_NEAR(NumberAfter(r.out, "\"floater_share\": "), 0.2, 0.004) << r.out;
-  EXPECT_NEAR(NumberAfter(r.out, "\"floater_area_m2\": "), 1.0, 0.02) << r.out;
+  j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  EXPECT_NEAR(j["floater_share"].get<double>(), 0.2, 0.004) << r.out;
+  EXPECT_NEAR(j["floater_area_m2"].get<double>(), 1.0, 0.02) << r.out;
   r = RunRimEval(floating + " " + gt_ + " --no-crop --samples 20000");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   const std::string line = "Floaters (> 20 cm): ";
@@ -957,12 +903,13 @@ TEST_F(RimEvalCliTest, PointCloudGroundTruth) {
   WritePointPly(gt_points, GridCloudZ(0, 0, 2, 0, 2, 0.005f));
   RunResult r = RunRimEval(pred_ + " " + gt_points + " --json --samples 200000 --threads 1");
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
-  EXPECT_NE(r.out.find("\"gt_kind\": \"points\""), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("\"pred_kind\": \"mesh\""), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("\"gt\": null"), std::string::npos) << "no GT area: " << r.out;
-  EXPECT_NE(r.out.find("\"gt_samples\": 160000"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+  nlohmann::ordered_json j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  EXPECT_EQ(j["gt_kind"], "points") << r.out;
+  EXPECT_EQ(j["pred_kind"], "mesh") << r.out;
+  EXPECT_TRUE(j["area_m2"]["gt"].is_null()) << "no GT area: " << r.out;
+  EXPECT_EQ(j["points"]["gt_samples"], 160000) << r.out;
+  EXPECT_EQ(j["standard"]["fscore_pct"], 100.0) << r.out;
 
   // --region clips the point GT too: half the plane.
   r = RunRimEval(pred_ + " " + gt_points + " --json --samples 200000 --region 0,0,-1,1,2,1");
@@ -997,13 +944,14 @@ TEST_F(RimEvalCliTest, BoxUnionAlongASequence) {
   RunResult r =
       RunRimEval(pred_ + " " + gt_ + " --json --samples 20000 --box 0.5,0.5,-1,1 --seq " + seq);
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_TRUE(JsonChecker(r.out).Valid()) << r.out;
-  EXPECT_NE(r.out.find("\"box\": {\"hx\": 0.5000, \"hy\": 0.5000, \"z_min\": -1.0000, "
-                       "\"z_max\": 1.0000, \"frames\": 2, \"seq\": \"" +
-                       seq + "\"}"),
-            std::string::npos)
+  nlohmann::ordered_json j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  EXPECT_EQ(
+      j["box"],
+      nlohmann::ordered_json(
+          {{"hx", 0.5}, {"hy", 0.5}, {"z_min", -1.0}, {"z_max", 1.0}, {"frames", 2}, {"seq", seq}}))
       << r.out;
-  EXPECT_NE(r.out.find("\"fscore_pct\": 100.000"), std::string::npos) << r.out;
+  EXPECT_EQ(j["standard"]["fscore_pct"], 100.0) << r.out;
   r = RunRimEval(pred_ + " " + gt_ + " --samples 20000 --box=0.5,0.5,-1,1 --seq=" + seq);
   ASSERT_EQ(r.exit_code, 0) << r.out;
   EXPECT_NE(r.out.find("box union: |x - sx| < 0.5, |y - sy| < 0.5, sz -1 <= z < sz +1 m about "

@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "rim/base/status_macros.h"
 #include "rim/base/types.h"
+#include "rim/io/json.h"
 
 namespace rim::eval {
 namespace {
@@ -280,23 +281,28 @@ absl::StatusOr<ProbeReport> RunDistanceProbe(const io::Dataset& dataset, const M
 }
 
 std::string ProbeReportJson(const ProbeReport& r) {
-  std::string out = absl::StrFormat(
-      "{\n  \"drawn\": %d,\n  \"unseen_surface\": %d,\n  \"unobserved\": %d,\n  \"bins\": [",
-      r.drawn, r.unseen_surface, r.unobserved);
-  for (size_t i = 0; i < r.bins.size(); ++i) {
-    const ProbeBin& b = r.bins[i];
-    absl::StrAppendFormat(
-        &out,
-        "%s\n    {\"lo_m\": %.3f, \"hi_m\": %.3f, \"points\": %d, \"median_abs_error_m\": %.5f, "
-        "\"p90_abs_error_m\": %.5f, \"share_too_far\": %.5f, \"share_wrong_sign\": %.5f, "
-        "\"share_wrong_sign_beyond_2cm\": %.5f, "
-        "\"share_saturated\": %.5f, \"gradient_median_deg\": %.3f, \"gradient_p95_deg\": %.3f, "
-        "\"gradient_within_10deg\": %.5f}",
-        i ? "," : "", b.lo_m, b.hi_m, b.points, b.median_abs_error_m, b.p90_abs_error_m,
-        b.share_too_far, b.share_wrong_sign, b.share_wrong_sign_beyond_2cm, b.share_saturated,
-        b.gradient_median_deg, b.gradient_p95_deg, b.gradient_within_10deg);
+  using io::JsonNumber;
+  nlohmann::ordered_json bins = nlohmann::ordered_json::array();
+  for (const ProbeBin& b : r.bins) {
+    bins.push_back({{"lo_m", JsonNumber(b.lo_m, 3)},
+                    {"hi_m", JsonNumber(b.hi_m, 3)},
+                    {"points", b.points},
+                    {"median_abs_error_m", JsonNumber(b.median_abs_error_m, 5)},
+                    {"p90_abs_error_m", JsonNumber(b.p90_abs_error_m, 5)},
+                    {"share_too_far", JsonNumber(b.share_too_far, 5)},
+                    {"share_wrong_sign", JsonNumber(b.share_wrong_sign, 5)},
+                    {"share_wrong_sign_beyond_2cm", JsonNumber(b.share_wrong_sign_beyond_2cm, 5)},
+                    {"share_saturated", JsonNumber(b.share_saturated, 5)},
+                    {"gradient_median_deg", JsonNumber(b.gradient_median_deg, 3)},
+                    {"gradient_p95_deg", JsonNumber(b.gradient_p95_deg, 3)},
+                    {"gradient_within_10deg", JsonNumber(b.gradient_within_10deg, 5)}});
   }
-  return out + "\n  ]\n}\n";
+  // One bin a line.
+  return io::DumpJson({{"drawn", r.drawn},
+                       {"unseen_surface", r.unseen_surface},
+                       {"unobserved", r.unobserved},
+                       {"bins", bins}},
+                      2);
 }
 
 std::string ProbeReportTable(const ProbeReport& r) {

@@ -1,6 +1,7 @@
 #include "rim/io/json.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
 
 #include "absl/strings/str_cat.h"
@@ -23,7 +24,55 @@ absl::string_view Reason(absl::string_view what) {
   return colon == absl::string_view::npos ? what : what.substr(colon + 2);
 }
 
+using ordered_json = nlohmann::ordered_json;
+
+// nlohmann's own text for a number, string, boolean or null (a key too), escaped.
+std::string DumpScalar(const ordered_json& v) {
+  return v.dump(-1, ' ', false, ordered_json::error_handler_t::replace);
+}
+
+bool IsScalarArray(const ordered_json& v) {
+  return v.is_array() &&
+         std::none_of(v.begin(), v.end(), [](const ordered_json& e) { return e.is_structured(); });
+}
+
+void Dump(const ordered_json& v, int depth, int inline_depth, std::string* out) {
+  if (!v.is_structured()) {
+    *out += DumpScalar(v);
+    return;
+  }
+  const bool one_line = depth >= inline_depth || IsScalarArray(v) || v.empty();
+  const std::string pad(one_line ? 0 : 2 * (depth + 1), ' ');
+  const char* sep = one_line ? ", " : ",\n";
+  *out += v.is_object() ? "{" : "[";
+  if (!one_line) *out += "\n";
+  bool first = true;
+  for (auto it = v.begin(); it != v.end(); ++it) {
+    if (!first) *out += sep;
+    first = false;
+    *out += pad;
+    if (v.is_object()) absl::StrAppend(out, DumpScalar(it.key()), ": ");
+    Dump(it.value(), depth + 1, inline_depth, out);
+  }
+  if (!one_line) absl::StrAppend(out, "\n", std::string(2 * depth, ' '));
+  *out += v.is_object() ? "}" : "]";
+}
+
 }  // namespace
+
+std::string DumpJson(const nlohmann::ordered_json& value, int inline_depth) {
+  std::string out;
+  Dump(value, 0, inline_depth, &out);
+  return out + "\n";
+}
+
+nlohmann::ordered_json JsonNumber(double v, int decimals) {
+  if (!std::isfinite(v)) return nullptr;
+  const double scale = std::pow(10.0, decimals);
+  const double rounded = std::round(v * scale) / scale;
+  // Too large to round (|v| * scale past 2^53): it has no digits there to drop.
+  return std::isfinite(rounded) && std::abs(v * scale) < 9e15 ? rounded : v;
+}
 
 absl::StatusOr<nlohmann::json> ParseJson(absl::string_view text, const std::string& path) {
   const auto limit_depth = [](int depth, nlohmann::json::parse_event_t, nlohmann::json&) {
