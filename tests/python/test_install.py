@@ -7,6 +7,7 @@ Usage: test_install.py SOURCE_DIR_OF_THE_PACKAGE (clients/python), run with the 
 
 from __future__ import annotations
 
+import ast
 import os
 import re
 import sys
@@ -46,6 +47,36 @@ class InstalledPackageTest(unittest.TestCase):
 
         for name in ("Client", "Session", "RimError", "QueryResult", "MeshTile"):
             self.assertTrue(hasattr(rim_client, name), name)
+
+    def test_imports_go_one_way(self):
+        # Every import between rim_client's modules, TYPE_CHECKING ones too: no cycle.
+        import rim_client
+
+        folder = os.path.dirname(os.path.realpath(rim_client.__file__))
+        graph = {}
+        for name in sorted(os.listdir(folder)):
+            if not name.endswith(".py") or name == "__init__.py":
+                continue
+            with open(os.path.join(folder, name), encoding="utf-8") as f:
+                tree = ast.parse(f.read(), name)
+            imported = set()
+            for node in ast.walk(tree):
+                if isinstance(node, ast.ImportFrom) and node.module:
+                    imported.add(node.module)
+                elif isinstance(node, ast.Import):
+                    imported.update(alias.name for alias in node.names)
+            graph[name[:-3]] = {m.split(".")[1] for m in imported
+                                if m.startswith("rim_client.") and m != "rim_client"}
+        self.assertIn("session", graph["client"])
+        self.assertNotIn("client", graph["session"])
+
+        def visit(module, path):
+            self.assertNotIn(module, path, " -> ".join(path + [module]))
+            for target in sorted(graph.get(module, ())):
+                visit(target, path + [module])
+
+        for module in graph:
+            visit(module, [])
 
 
 if __name__ == "__main__":

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, List, Mapping, Optional
 
 import grpc
 
+from rim_client._connection import Metadata
 from rim_client._stubs import rim_pb2, rim_pb2_grpc
 from rim_client.errors import RimError, invalid_argument
 from rim_client.results import ServerInfo, SessionInfo
@@ -14,8 +15,6 @@ from rim_client.session import Session
 # Scans and query batches are large; the server accepts messages up to 256 MiB and enforces its
 # own point limits, which give clearer errors than a transport limit would.
 _MAX_MESSAGE_BYTES = 256 << 20
-
-Metadata = Sequence[Tuple[str, str]]
 
 
 def _override_value(value: Any) -> str:
@@ -144,7 +143,7 @@ class Client:
         response = self._unary(self._stub.ListSessions, rim_pb2.ListSessionsRequest())
         return [SessionInfo.from_proto(s) for s in response.sessions]
 
-    # -- used by Session -------------------------------------------------------------------------
+    # -- used by Session (rim_client._connection.Connection) ------------------------------------
 
     def _metadata(self, robot_id: Optional[str] = None) -> Metadata:
         """Per-call metadata: the robot a call is about (for routing and logs) and the token."""

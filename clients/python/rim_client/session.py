@@ -4,21 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import (TYPE_CHECKING, Any, Callable, Iterable, Iterator, List, Optional, Sequence,
-                    Union)
+from typing import Any, Callable, Iterable, Iterator, List, Optional, Sequence, Union
 
 import grpc
 import numpy as np
 
+from rim_client._connection import Connection
 from rim_client._stubs import rim_pb2
 from rim_client.convert import Pose, as_points, box_to_proto, pose_to_proto
 from rim_client.errors import RimError, invalid_argument
 from rim_client.results import (Ack, MeshTile, QueryResult, Rejection, SaveResult, SessionInfo,
                                 StreamSummary)
-
-if TYPE_CHECKING:
-    from rim_client.client import Client
-
 
 @dataclasses.dataclass
 class Frame:
@@ -57,7 +53,7 @@ class Session:
     A Session is meant for one thread at a time; use one per thread for concurrent work.
     """
 
-    def __init__(self, client: "Client", robot_id: str, info: Optional[SessionInfo] = None):
+    def __init__(self, client: Connection, robot_id: str, info: Optional[SessionInfo] = None):
         self._client = client
         self.robot_id = robot_id
         self.last_info = info
