@@ -2,16 +2,18 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <limits>
-#include <thread>
 
+#include "rim/base/worker_pool.h"
 #include "sim/rng.h"
 
 namespace rim::sim {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+// Rays, and depth image rows, handed to a thread at a time (rim::ParallelFor): small enough that
+// threads that drew cheap rays (sky) take more blocks than those that drew the city.
+constexpr int kRayBlock = 1024, kRowBlock = 4;
 
 // Gaussian sample for ray `index` of the stream `seed`.
 double RayNoise(const NoiseOptions& noise, uint64_t index) {
@@ -21,22 +23,6 @@ double RayNoise(const NoiseOptions& noise, uint64_t index) {
 }
 
 }  // namespace
-
-void ParallelFor(int n, int threads, const std::function<void(int, int)>& fn) {
-  threads = std::clamp(threads, 1, std::max(n, 1));
-  if (threads == 1) {
-    fn(0, n);
-    return;
-  }
-  std::vector<std::thread> pool;
-  pool.reserve(threads);
-  for (int k = 0; k < threads; ++k) {
-    const int begin = static_cast<int>(static_cast<int64_t>(n) * k / threads);
-    const int end = static_cast<int>(static_cast<int64_t>(n) * (k + 1) / threads);
-    pool.emplace_back([&fn, begin, end] { fn(begin, end); });
-  }
-  for (std::thread& t : pool) t.join();
-}
 
 Vec3 LidarRayDirection(const LidarModel& model, int ring, int column) {
   const double elev_deg = model.beams > 1
@@ -64,9 +50,9 @@ std::vector<LidarPoint> SimulateLidarScan(const RayCaster& caster,
     for (int c = 0; c < model.columns; ++c)
       dirs[r * model.columns + c] = LidarRayDirection(model, r, c);
   }
-  ParallelFor(rays, threads, [&](int begin, int end) {
+  ParallelFor(rays, kRayBlock, threads, [&](int64_t begin, int64_t end) {
     RayHit hit;
-    for (int i = begin; i < end; ++i) {
+    for (int i = int(begin); i < int(end); ++i) {
       const Vec3& ds = dirs[i];
       const Vec3 dw = rot * ds;
       LidarPoint& p = grid[i];
@@ -102,9 +88,9 @@ std::vector<float> RenderDepth(const RayCaster& caster, const Eigen::Isometry3d&
   std::vector<SensorTruth> truth_grid(truth != nullptr ? pixels : 0);
   const Eigen::Matrix3d rot = world_from_camera.linear();
   const Vec3 origin = world_from_camera.translation();
-  ParallelFor(camera.height, threads, [&](int row_begin, int row_end) {
+  ParallelFor(camera.height, kRowBlock, threads, [&](int64_t row_begin, int64_t row_end) {
     RayHit hit;
-    for (int v = row_begin; v < row_end; ++v) {
+    for (int v = int(row_begin); v < int(row_end); ++v) {
       for (int u = 0; u < camera.width; ++u) {
         const Vec3 ray((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0);
         const double len = ray.norm();

@@ -3,7 +3,6 @@
 
 #include <Eigen/Geometry>
 #include <cstdint>
-#include <functional>
 #include <vector>
 
 #include "sim/scene.h"
@@ -71,8 +70,5 @@ struct PinholeCamera {
 std::vector<float> RenderDepth(const RayCaster& caster, const Eigen::Isometry3d& world_from_camera,
                                const PinholeCamera& camera, const NoiseOptions& noise, int threads,
                                std::vector<SensorTruth>* truth = nullptr);
-
-// Runs fn(begin, end) over [0, n) split into `threads` contiguous chunks (inline when 1).
-void ParallelFor(int n, int threads, const std::function<void(int, int)>& fn);
 
 }  // namespace rim::sim

@@ -7,7 +7,7 @@
 #include <mutex>
 #include <vector>
 
-#include "rim/eval/parallel_for.h"
+#include "rim/base/worker_pool.h"
 #include "rim/map/deferred_points.h"
 #include "rim/map/distance_field.h"
 #include "rim/map/local_map.h"
@@ -206,7 +206,7 @@ double Mapper::RefreshDistanceField() {
   std::vector<std::vector<Int3>> voxels(keys.size());
   // Where the last refresh found the zero level, by voxel: the next refresh starts there.
   std::vector<std::shared_ptr<const std::vector<Surfel>>> before(keys.size());
-  eval::ParallelFor(int64_t(keys.size()), 1, threads, [&](int64_t begin, int64_t end) {
+  ParallelFor(int64_t(keys.size()), 1, threads, [&](int64_t begin, int64_t end) {
     for (int64_t k = begin; k < end; ++k) {
       voxels[size_t(k)] = RefreshVoxels(keys[size_t(k)], regions);
       before[size_t(k)] = distance_->Surfels(keys[size_t(k)]);
@@ -221,7 +221,7 @@ double Mapper::RefreshDistanceField() {
     for (size_t b = 0; b < voxels[k].size(); b += kRefreshPiece)
       pieces.push_back({k, b, std::min(kRefreshPiece, voxels[k].size() - b)});
   std::vector<std::vector<Surfel>> found(pieces.size());
-  eval::ParallelFor(int64_t(pieces.size()), 1, threads, [&](int64_t begin, int64_t end) {
+  ParallelFor(int64_t(pieces.size()), 1, threads, [&](int64_t begin, int64_t end) {
     for (int64_t i = begin; i < end; ++i) {
       const Piece& piece = pieces[size_t(i)];
       ExtractSurfels(keys[piece.key], voxels[piece.key], piece.begin, piece.count,
@@ -236,11 +236,11 @@ double Mapper::RefreshDistanceField() {
     std::vector<Surfel>& to = fresh[pieces[i].key];
     to.insert(to.end(), found[i].begin(), found[i].end());
   }
-  eval::ParallelFor(int64_t(keys.size()), 1, std::max(config_.train.threads, 1),
-                    [&](int64_t begin, int64_t end) {
-                      for (int64_t k = begin; k < end; ++k)
-                        distance_->Replace(keys[size_t(k)], regions, std::move(fresh[size_t(k)]));
-                    });
+  ParallelFor(int64_t(keys.size()), 1, std::max(config_.train.threads, 1),
+              [&](int64_t begin, int64_t end) {
+                for (int64_t k = begin; k < end; ++k)
+                  distance_->Replace(keys[size_t(k)], regions, std::move(fresh[size_t(k)]));
+              });
   if (box) distance_box_ = std::move(box);
   RefreshReturns();
   return Now() - start;
@@ -252,36 +252,37 @@ void Mapper::RefreshReturns() {
   if (keys.empty()) return;
   const double inv_s = 1.0 / geometry_->leaf_m();
   std::vector<std::vector<Surfel>> built(keys.size());
-  eval::ParallelFor(
-      int64_t(keys.size()), 1, std::max(config_.train.threads, 1), [&](int64_t begin, int64_t end) {
-        FeatureReader reader(*local_map_, *store_);
-        std::vector<uint32_t> voxels;
-        std::vector<float> rays;
-        for (int64_t k = begin; k < end; ++k) {
-          deferred_->Rays(keys[size_t(k)], &voxels, &rays);
-          std::vector<Surfel>& out = built[size_t(k)];
-          out.reserve(voxels.size());
-          for (size_t i = 0; i < voxels.size(); ++i) {
-            const float* p = &rays[6 * i];
-            const Int3 g0(int(std::floor(p[0] * inv_s)), int(std::floor(p[1] * inv_s)),
-                          int(std::floor(p[2] * inv_s)));
-            // Where training put surface samples, the network's zero level holds the surface.
-            if (reader.ObservedBits(g0) & LocalMap::kObserved) continue;
-            Surfel s;
-            float n2 = 0;
-            for (int a = 0; a < 3; ++a) {
-              s.p[a] = p[a];
-              s.n[a] = p[3 + a] - p[a];
-              n2 += s.n[a] * s.n[a];
-            }
-            if (!(n2 > 1e-12f)) continue;
-            const float inv = 1.f / std::sqrt(n2);
-            for (float& c : s.n) c *= inv;
-            s.voxel = voxels[i];
-            out.push_back(s);
-          }
-        }
-      });
+  ParallelFor(int64_t(keys.size()), 1, std::max(config_.train.threads, 1),
+              [&](int64_t begin, int64_t end) {
+                FeatureReader reader(*local_map_, *store_);
+                std::vector<uint32_t> voxels;
+                std::vector<float> rays;
+                for (int64_t k = begin; k < end; ++k) {
+                  deferred_->Rays(keys[size_t(k)], &voxels, &rays);
+                  std::vector<Surfel>& out = built[size_t(k)];
+                  out.reserve(voxels.size());
+                  for (size_t i = 0; i < voxels.size(); ++i) {
+                    const float* p = &rays[6 * i];
+                    const Int3 g0(int(std::floor(p[0] * inv_s)), int(std::floor(p[1] * inv_s)),
+                                  int(std::floor(p[2] * inv_s)));
+                    // Where training put surface samples, the network's zero level holds the
+                    // surface.
+                    if (reader.ObservedBits(g0) & LocalMap::kObserved) continue;
+                    Surfel s;
+                    float n2 = 0;
+                    for (int a = 0; a < 3; ++a) {
+                      s.p[a] = p[a];
+                      s.n[a] = p[3 + a] - p[a];
+                      n2 += s.n[a] * s.n[a];
+                    }
+                    if (!(n2 > 1e-12f)) continue;
+                    const float inv = 1.f / std::sqrt(n2);
+                    for (float& c : s.n) c *= inv;
+                    s.voxel = voxels[i];
+                    out.push_back(s);
+                  }
+                }
+              });
   for (size_t k = 0; k < keys.size(); ++k) distance_->ReplaceReturns(keys[k], std::move(built[k]));
 }
 

@@ -8,7 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/status_macros.h"
-#include "rim/eval/parallel_for.h"
+#include "rim/base/worker_pool.h"
 #include "rim/map/distance_field.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
@@ -48,8 +48,8 @@ void ForChunks(size_t n, int threads, const std::function<void(size_t, size_t)>&
     const size_t chunks = size_t(threads) * ((n + per_round - 1) / per_round);
     block = (n + chunks - 1) / chunks;
   }
-  eval::ParallelFor(int64_t(n), int64_t(block), threads,
-                    [&](int64_t b, int64_t e) { fn(size_t(b), size_t(e - b)); });
+  ParallelFor(int64_t(n), int64_t(block), threads,
+              [&](int64_t b, int64_t e) { fn(size_t(b), size_t(e - b)); });
 }
 }  // namespace
 

@@ -1,16 +1,23 @@
 // WorkerPool: every task runs exactly once per Run, on several threads, over many back-to-back
-// regions (the training loop's pattern), and a pool of one thread runs inline.
+// regions (the training loop's pattern), and a pool of one thread runs inline. ParallelFor: every
+// item once, in whole blocks, nested calls, helpers named after the caller.
 #include "rim/base/worker_pool.h"
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <mutex>
 #include <set>
+#include <string>
 #include <thread>
 #include <vector>
 
 #include "gtest/gtest.h"
 #include "rim/base/thread_priority.h"
+
+#if defined(__linux__)
+#include <sys/prctl.h>
+#endif
 
 namespace rim {
 namespace {
@@ -69,7 +76,68 @@ TEST(WorkerPoolTest, OneThreadRunsInline) {
   for (const auto& id : ids) EXPECT_EQ(id, std::this_thread::get_id());
 }
 
+TEST(ParallelForTest, EveryItemOnceInWholeBlocks) {
+  for (int64_t n : {0, 1, 5, 1000, 1001}) {
+    for (int64_t block : {0, 1, 7, 64, 5000}) {
+      for (int threads : {0, 1, 2, 4}) {
+        std::vector<std::atomic<int>> runs(static_cast<size_t>(n));
+        std::atomic<bool> whole{true};
+        ParallelFor(n, block, threads, [&](int64_t begin, int64_t end) {
+          const int64_t b = std::max<int64_t>(block, 1);
+          if (begin % b != 0 || end != std::min(n, begin + b)) whole = false;
+          for (int64_t i = begin; i < end; ++i) runs[size_t(i)].fetch_add(1);
+        });
+        EXPECT_TRUE(whole) << n << " " << block << " " << threads;
+        for (int64_t i = 0; i < n; ++i)
+          ASSERT_EQ(runs[size_t(i)].load(), 1) << n << " " << block << " " << threads << " " << i;
+      }
+    }
+  }
+}
+
+TEST(ParallelForTest, BlocksSpreadOverThreadsAndCallsNest) {
+  std::mutex mu;
+  std::set<std::thread::id> ids;
+  std::atomic<int> started{0};
+  std::atomic<int64_t> sum{0};
+  ParallelFor(2, 1, 2, [&](int64_t, int64_t) {
+    started.fetch_add(1);
+    while (started.load() < 2) std::this_thread::yield();  // both blocks at once: two threads
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      ids.insert(std::this_thread::get_id());
+    }
+    ParallelFor(100, 10, 2, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) sum.fetch_add(i);
+    });
+  });
+  EXPECT_EQ(ids.size(), 2u);
+  EXPECT_EQ(sum.load(), 2 * 4950);
+}
+
 }  // namespace
+#if defined(__linux__)
+// A query's or a refresh's helpers show as the thread they help (rim-train for a refresh), not as
+// the trainer's pool.
+TEST(ParallelForTest, HelpersCarryTheCallersName) {
+  std::thread caller([] {
+    NameThisThread("rim-test-pf");
+    std::mutex mu;
+    std::set<std::string> names;
+    std::atomic<int> started{0};
+    ParallelFor(3, 1, 3, [&](int64_t, int64_t) {
+      started.fetch_add(1);
+      while (started.load() < 3) std::this_thread::yield();
+      char name[16] = {};
+      prctl(PR_GET_NAME, name);
+      std::lock_guard<std::mutex> lock(mu);
+      names.insert(name);
+    });
+    EXPECT_EQ(names, std::set<std::string>{"rim-test-pf"});
+  });
+  caller.join();
+}
+#endif
 #if defined(__linux__)
 // The server lowers its trainer thread's priority (--background-nice); the pool that thread drives
 // was made elsewhere, at the normal priority, and must follow it down, or training would keep

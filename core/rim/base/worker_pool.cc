@@ -1,15 +1,16 @@
 #include "rim/base/worker_pool.h"
 
 #include <algorithm>
+#include <string>
 
 #include "rim/base/thread_priority.h"
 
 namespace rim {
 
-WorkerPool::WorkerPool(int threads) {
+WorkerPool::WorkerPool(int threads, const char* name) {
   for (int i = 1; i < std::max(threads, 1); ++i)
-    workers_.emplace_back([this] {
-      NameThisThread("rim-pool");
+    workers_.emplace_back([this, name = std::string(name != nullptr ? name : "")] {
+      if (!name.empty()) NameThisThread(name);
       Work();
     });
 }
@@ -84,6 +85,22 @@ void WorkerPool::Work() {
       std::lock_guard<std::mutex> lock(mu_);
       done_cv_.notify_one();
     }
+  }
+}
+
+void ParallelFor(int64_t n, int64_t block, int threads,
+                 const std::function<void(int64_t begin, int64_t end)>& fn) {
+  if (n <= 0) return;
+  block = std::max<int64_t>(block, 1);
+  const int64_t blocks = (n + block - 1) / block;
+  WorkerPool pool(int(std::min<int64_t>(std::max(threads, 1), blocks)), /*name=*/nullptr);
+  // Run counts tasks in an int: more blocks than that go in rounds.
+  constexpr int64_t kRound = int64_t(1) << 30;
+  for (int64_t first = 0; first < blocks; first += kRound) {
+    pool.Run(int(std::min(kRound, blocks - first)), [&](int task) {
+      const int64_t begin = (first + task) * block;
+      fn(begin, std::min(n, begin + block));
+    });
   }
 }
 

@@ -1,10 +1,14 @@
-// A fixed set of threads that run the parallel parts of a training iteration (encode, gradient
-// scatter, Adam) on the cores a session is given (train.threads). The caller's thread works too,
-// so a pool of n threads starts n − 1. Regions are a few milliseconds long and come ~100 times a
-// second, so the workers stay alive and wait on a condition variable instead of being started
-// per region. The workers run at the priority of the thread that calls Run (a pool made on one
-// thread and used from a lower-priority trainer thread follows it down;
+// The project's one thread pool. A fixed set of threads that run the parallel parts of a training
+// iteration (encode, gradient scatter, Adam) on the cores a session is given (train.threads). The
+// caller's thread works too, so a pool of n threads starts n − 1. Regions are a few milliseconds
+// long and come ~100 times a second, so the workers stay alive and wait on a condition variable
+// instead of being started per region. The workers run at the priority of the thread that calls
+// Run (a pool made on one thread and used from a lower-priority trainer thread follows it down;
 // rim/base/thread_priority.h).
+//
+// ParallelFor below is the blocking loop on a pool of its own, for the large one-off loops of the
+// evaluation (rim/eval), the mapper's queries and distance-field refreshes, and the simulator's
+// sensors.
 #pragma once
 
 #include <atomic>
@@ -19,7 +23,9 @@ namespace rim {
 
 class WorkerPool {
  public:
-  explicit WorkerPool(int threads);
+  // `name` names the workers (top -H, perf); nullptr or "" leaves them the name of the thread that
+  // made the pool.
+  explicit WorkerPool(int threads, const char* name = "rim-pool");
   ~WorkerPool();
   WorkerPool(const WorkerPool&) = delete;
   WorkerPool& operator=(const WorkerPool&) = delete;
@@ -53,5 +59,14 @@ class WorkerPool {
   bool stop_ = false;
   std::vector<std::thread> workers_;
 };
+
+// Calls fn(begin, end) on consecutive blocks of `block` items that cover [0, n), on `threads`
+// threads (the caller's included, never more than there are blocks). Blocks are handed out in
+// order on demand, so uneven blocks balance. The threads are a WorkerPool made for the call: its
+// workers carry the caller's name and priority, and a call may nest inside another's fn. Each
+// item's work must not depend on which block or thread runs it; then the result is the same for
+// any `threads` and `block`. fn must not throw.
+void ParallelFor(int64_t n, int64_t block, int threads,
+                 const std::function<void(int64_t begin, int64_t end)>& fn);
 
 }  // namespace rim

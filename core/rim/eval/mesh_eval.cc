@@ -13,8 +13,8 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "rim/base/status_macros.h"
+#include "rim/base/worker_pool.h"
 #include "rim/eval/nearest_neighbors.h"
-#include "rim/eval/parallel_for.h"
 
 namespace rim::eval {
 namespace {

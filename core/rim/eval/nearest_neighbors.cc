@@ -4,7 +4,7 @@
 #include <limits>
 #include <nanoflann.hpp>
 
-#include "rim/eval/parallel_for.h"
+#include "rim/base/worker_pool.h"
 
 namespace rim::eval {
 namespace {
