@@ -7,8 +7,9 @@
 // (rim_sim's gt.ply and gt_observed.ply) at free-space points on its rays (eval/distance_probe.h):
 // `metric` asks QuerySdf, `neural` the network's own values. Writes DIR/probe.json.
 // --query-points reads CSV x,y,z (header optional) and writes DIR/query.csv with the final map's
-// answers, x,y,z,sdf,observed,gt_distance: gt_distance is the exact distance to the dataset's
-// gt.ply (empty when it has none), for checks at chosen places (where people walked, say).
+// answers, x,y,z,sdf,observed,gx,gy,gz,gt_distance: g is the distance's gradient (so the nearest
+// mapped surface lies at p - sdf * g), gt_distance the exact distance to the dataset's gt.ply
+// (empty when it has none), for checks at chosen places (where people walked, say).
 // Writes DIR/mesh.ply (all tiles, welded), DIR/tiles/*.ply with --tiles, DIR/timing.json
 // (per-stage mean times, ms/frame, frames/s, peak and per-frame memory) and DIR/run.json (config
 // and versions), and prints the per-stage table in the layout of the paper's module-time table.
@@ -144,16 +145,17 @@ absl::Status AnswerQueryPoints(const Args& args, const Mapper& mapper) {
     xyz.insert(xyz.end(), {v[0], v[1], v[2]});
   }
   QueryResult q;
-  RIM_RETURN_IF_ERROR(mapper.QuerySdf(xyz.data(), xyz.size() / 3, false, &q));
+  RIM_RETURN_IF_ERROR(mapper.QuerySdf(xyz.data(), xyz.size() / 3, true, &q));
   std::unique_ptr<eval::MeshDistance> gt;
   if (std::ifstream(args.dataset + "/gt.ply").good()) {
     RIM_ASSIGN_OR_RETURN(Mesh mesh, ReadMeshPly(args.dataset + "/gt.ply"));
     gt = std::make_unique<eval::MeshDistance>(mesh);
   }
-  std::string out = "x,y,z,sdf,observed,gt_distance\n";
+  std::string out = "x,y,z,sdf,observed,gx,gy,gz,gt_distance\n";
   for (size_t i = 0; i < q.sdf.size(); ++i) {
-    absl::StrAppendFormat(&out, "%.4f,%.4f,%.4f,%.4f,%d,", xyz[3 * i], xyz[3 * i + 1],
-                          xyz[3 * i + 2], q.sdf[i], q.observed[i] ? 1 : 0);
+    absl::StrAppendFormat(&out, "%.4f,%.4f,%.4f,%.4f,%d,%.4f,%.4f,%.4f,", xyz[3 * i],
+                          xyz[3 * i + 1], xyz[3 * i + 2], q.sdf[i], q.observed[i] ? 1 : 0,
+                          q.gradient[3 * i], q.gradient[3 * i + 1], q.gradient[3 * i + 2]);
     if (gt) {
       std::array<float, 3> nearest;
       absl::StrAppendFormat(&out, "%.4f",

@@ -266,8 +266,9 @@ void Mapper::RefreshReturns() {
                     const Int3 g0(int(std::floor(p[0] * inv_s)), int(std::floor(p[1] * inv_s)),
                                   int(std::floor(p[2] * inv_s)));
                     // Where training put surface samples, the network's zero level holds the
-                    // surface.
-                    if (reader.ObservedBits(g0) & LocalMap::kObserved) continue;
+                    // surface. Where a box saw free space and no surface, a later return from
+                    // afar is something that moved through (docs/core.md, "Moving things").
+                    if (reader.ObservedBits(g0) & LocalMap::kObservedBits) continue;
                     Surfel s;
                     float n2 = 0;
                     for (int a = 0; a < 3; ++a) {

@@ -380,5 +380,46 @@ TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
   EXPECT_EQ(MeshVerticesWherePersonStoodAfterDriving(30), 0);
 }
 
+// A person who steps, behind the robot, onto a place its box saw free earlier: the box has left,
+// so their returns wait in the deferred store, and the rays that later pass where they stood are
+// not judged this time (the filter is off). A box's evidence of free space outweighs later returns
+// from afar: they are not in the planner's distances there.
+TEST(TransientTest, ReturnsFromAfarWhereABoxSawFreeSpaceAreNotDistances) {
+  auto config = MakePreset("maicity");
+  ASSERT_TRUE(ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5",
+                              "transient.enabled=false"},
+                             &*config)
+                  .ok());
+  auto mapper = Mapper::Create(*config);
+  ASSERT_TRUE(mapper.ok());
+  AnalyticScene scene = Ground();
+  scene.boxes.push_back({Eigen::Vector3f(-80.f, 8.f, -0.05f), Eigen::Vector3f(60.f, 9.f, 5.f)});
+  AnalyticScene with_person = scene;
+  with_person.boxes.push_back(
+      {Eigen::Vector3f(2.f, 3.f, -0.05f), Eigen::Vector3f(2.5f, 3.6f, 1.8f)});
+  testing_support::LidarModel lidar = CarLidar(0.01f);
+  lidar.columns = 900;
+  for (int f = 0; f < 26; ++f) {
+    // 1 m a frame along +x: the box (±10 m) holds x = 2 until about frame 12; the person stands
+    // there from frame 15 to 20, 13-18 m behind the sensor.
+    const Eigen::Isometry3f T = PoseAt(float(f), 0.f);
+    PosedScan scan;
+    scan.T_world_sensor = T.cast<double>();
+    const bool there = f >= 15 && f <= 20;
+    scan.points_S = testing_support::SimulateScan(there ? with_person : scene, lidar, T, 70 + f);
+    ASSERT_TRUE((*mapper)->IntegrateScan(scan).ok());
+  }
+  (*mapper)->RefreshDistanceField();
+  EXPECT_GT((*mapper)->Stats().deferred_points, 0);
+  // In front of where the person stood: the ground is the nearest true surface.
+  std::vector<float> xyz;
+  for (float x : {2.1f, 2.25f, 2.4f})
+    for (float z : {0.6f, 1.f, 1.4f}) xyz.insert(xyz.end(), {x, 2.75f, z});
+  QueryResult q;
+  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
+  for (size_t i = 0; i < q.sdf.size(); ++i)
+    EXPECT_GT(q.sdf[i], xyz[3 * i + 2] - 0.1f) << "at z " << xyz[3 * i + 2];
+}
+
 }  // namespace
 }  // namespace rim
