@@ -235,6 +235,9 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto rays =
         GaugeFamily("rim_rays_per_iteration", "Rays in each training batch of the last frame");
     auto loss = GaugeFamily("rim_training_loss", "Training loss of the last frame");
+    auto real_time = GaugeFamily("rim_session_real_time",
+                                 "1: iterations keep up with a real-time stream's sensor clock; "
+                                 "0: a replay or upload, full iterations and backpressure");
     auto submaps = GaugeFamily("rim_submaps", "Sub-maps of the global map, by state");
     auto memory = GaugeFamily("rim_session_host_memory_bytes",
                               "Host memory held by one session's maps and buffers");
@@ -256,6 +259,7 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&iterations, id, s.iterations_per_frame);
         AddGauge(&rays, id, s.rays_per_iteration);
         AddGauge(&loss, id, s.last_loss);
+        AddGauge(&real_time, id, s.real_time ? 1 : 0);
         AddGauge(&submaps, {id[0], {"state", "active"}}, m.submaps_active);
         AddGauge(&submaps, {id[0], {"state", "frozen"}}, m.submaps_frozen);
         AddGauge(&submaps, {id[0], {"state", "on_disk"}}, m.submaps_on_disk);
@@ -275,8 +279,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
     AddGauge(&device, {}, 0);
-    return {build,  active,     queue, lag,       iterations, rays, loss,  submaps,
-            memory, checkpoint, wal,   transient, budget,     rss,  device};
+    return {build,   active, queue,      lag, iterations, rays,   loss, real_time,
+            submaps, memory, checkpoint, wal, transient,  budget, rss,  device};
   }
 
  private:

@@ -173,18 +173,27 @@ absl::Status Session::Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_
   // robot's (an upload throttled by a full queue would otherwise look like a slow sensor).
   // An upload (a sender that did not say it streams in real time) clears the pace: its scans come
   // as fast as the sender makes or reads them, which on a shared machine tracks our own load.
+  // A real-time stream whose timestamps run ahead of their arrival is a replay, paced like an
+  // upload (SensorClock).
   const double now = SteadySeconds();
-  if (!real_time) {
+  if (real_time) {
+    clock_.Arrive(now, scan.timestamp_s, pushed_back_);
+  } else {
+    clock_.Reset();
+  }
+  const bool paced = real_time && !clock_.ahead();
+  if (!paced) {
     arrival_period_s_ = 0;
   } else if (!pushed_back_ && last_arrival_s_ >= 0 && now - last_arrival_s_ < 2.0) {
     const double dt = now - last_arrival_s_;
     arrival_period_s_ = arrival_period_s_ > 0 ? 0.8 * arrival_period_s_ + 0.2 * dt : dt;
   }
-  last_arrival_s_ = real_time ? now : -1;
+  last_arrival_s_ = paced ? now : -1;
+  stats_.real_time = paced;
   pushed_back_ = false;
   last_sequence_ = has_sequence_ ? std::max(last_sequence_, sequence) : sequence;
   has_sequence_ = true;
-  queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated)});
+  queue_.push_back(Item{sequence, std::move(scan), std::move(on_integrated), real_time});
   ++stats_.accepted;
   if (options_.events) options_.events->ScanAccepted(robot_id_);
   stats_.queue_depth = queue_.size();
@@ -433,20 +442,26 @@ void Session::Run() {
     queue_.pop_front();
     busy_ = true;
     const size_t depth_at_start = queue_.size() + 1;
-    const double period_s = arrival_period_s_;
+    // The stream's regime now: a real-time stream found ahead of its sensor's clock since this
+    // scan came (a replay's first scans) is a replay from here on.
+    const bool paced = item.real_time && !clock_.ahead();
+    const double period_s = paced ? arrival_period_s_ : 0;
     std::vector<std::function<void()>> waiters;
     waiters.swap(space_waiters_);
     lock.unlock();
     for (auto& fn : waiters) fn();
 
-    // A robot streaming in real time gets what keeps its queue short; a queue that fills anyway
-    // (a burst, an upload) takes iterations away as before. A paced frame whose period fits
-    // enough of them trains on smaller batches (sampler.paced_rays_per_iteration), more of them
-    // in its time (docs/service.md).
+    // A robot streaming in real time gets what keeps its queue short, and a queue that fills
+    // anyway (a burst) takes iterations away. A paced frame whose period fits enough of them
+    // trains on smaller batches (sampler.paced_rays_per_iteration), more of them in its time.
+    // A replay or an upload trains the configured iterations whatever its queue: nothing waits
+    // for it but its sender, whom a full queue pushes back (docs/service.md).
     const int rays = FrameBatch(depth_at_start, period_s);
     const auto [fewest, most] = mapper_->IterationBounds(rays);
-    const int iterations = std::min(AdaptiveIterations(depth_at_start, fewest, most),
-                                    PacedIterations(depth_at_start, period_s, fewest, most, rays));
+    const int iterations =
+        paced ? std::min(AdaptiveIterations(depth_at_start, fewest, most),
+                         PacedIterations(depth_at_start, period_s, fewest, most, rays))
+              : most;
     const double frame_start_s = SteadySeconds();
     StageTimings timing;
     absl::Status status;

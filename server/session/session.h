@@ -21,6 +21,7 @@
 #include "rim/mapper.h"
 #include "server/session/compute_scheduler.h"
 #include "server/session/meshing_budget.h"
+#include "server/session/sensor_clock.h"
 #include "server/session/session_events.h"
 #include "server/session/session_lease.h"
 #include "server/session/tile_cache.h"
@@ -81,6 +82,10 @@ struct SessionStats {
   int rays_per_iteration = 0;  // the batch of those iterations
   float last_loss = 0;
   StageTimings last_timing;
+  // The regime of the last accepted scan (docs/service.md, "Replays keep the offline map"): true
+  // while a real-time stream keeps to its sensor's clock and iterations keep up with it; false
+  // for a replay or an upload, which trains the configured iterations and is pushed back instead.
+  bool real_time = false;
 };
 
 // Scans that arrive less than this far apart on average come from an upload, not from a sensor:
@@ -118,8 +123,11 @@ class Session {
   // Queues a validated scan. RESOURCE_EXHAUSTED when the queue is full (nothing changed; call
   // again after OnSpace); FAILED_PRECONDITION once the session is closing. `on_integrated` runs on
   // the trainer thread after the scan is trained. `real_time`: the scan comes from a stream at a
-  // sensor's rate (its sender said so): only such scans set the pace that PacedIterations trains
-  // to; any other scan (an upload) clears it, and the queue alone sets the iterations.
+  // sensor's rate (its sender said so). Iterations are cut only for such scans, and only while
+  // their timestamps keep to the sensor's clock (SensorClock): they set the pace that
+  // PacedIterations trains to, and a queue that fills anyway takes iterations away
+  // (AdaptiveIterations). Any other scan (an upload, a replay, a stream ahead of its sensor's
+  // clock) clears the pace and trains the configured iterations; its sender waits for space.
   absl::Status Submit(uint64_t sequence, PosedScan scan, IntegratedFn on_integrated,
                       bool real_time = false);
   // Registers a one-shot callback run (on the trainer thread) when the queue has room again.
@@ -215,6 +223,7 @@ class Session {
     uint64_t sequence;
     PosedScan scan;
     IntegratedFn on_integrated;
+    bool real_time;  // Submit's
   };
 
   const std::string robot_id_;
@@ -248,6 +257,8 @@ class Session {
   // Under mu_: the queue refused a scan or made a stream wait for space since the last scan was
   // accepted.
   bool pushed_back_ = false;
+  // Under mu_: the sensor's clock of the real-time scans, to tell a live sensor from a replay.
+  SensorClock clock_;
   // Trainer thread only: exponential averages of a training iteration's wall time and of the rest
   // of a frame's (slide, preprocessing, distance refreshes), and the frames they have seen.
   // iteration_s_ on the configured batch, small_iteration_s_ on the paced one.

@@ -123,8 +123,8 @@ TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRate
               (long long)upload.Between());
   EXPECT_GT(paced.Between(), 0);
   EXPECT_EQ(upload.Between(), 0);
-  // The upload: the queue rule lowers the iterations only as the queue fills, so it runs full,
-  // on the configured batch.
+  // The upload: the configured iterations whatever its queue (docs/service.md, "Replays keep the
+  // offline map"), on the configured batch, so its queue fills.
   EXPECT_GE(SecondHalfMedian(upload.lag), kQueueLength / 2) << "interval " << interval_s << " s";
   for (int rays : upload.rays) EXPECT_EQ(rays, kRays);
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);

@@ -389,5 +389,87 @@ TEST(SessionTest, PeriodicCheckpointsKeepTheLogShort) {
   EXPECT_EQ(replayed, 1);
 }
 
+// A live sensor's scans arrive no earlier than its clock allows, whatever the network's jitter or
+// a backlog it catches up on; a replay's run ahead of it, and stay ahead while the session holds
+// the sender back.
+TEST(SensorClockTest, TellsALiveSensorFromAReplay) {
+  SensorClock live;
+  for (int i = 0; i < 50; ++i) {
+    // 10 Hz, each scan up to 80 ms late, the first one 190 ms late.
+    const double late = i == 0 ? 0.19 : 0.08 * ((i * 7) % 5) / 4.0;
+    live.Arrive(100 + 0.1 * i + late, 5 + 0.1 * i, false);
+    EXPECT_FALSE(live.ahead()) << i;
+  }
+  // Held back for a second by a full queue, then catching up: late, never ahead.
+  for (int i = 50; i < 60; ++i)
+    live.Arrive(100 + 0.1 * 50 + 1.0 + 0.05 * (i - 50), 5 + 0.1 * i, i == 50);
+  EXPECT_FALSE(live.ahead());
+  EXPECT_LT(live.lead_s(), 0);
+
+  SensorClock replay;
+  int ahead_at = -1;
+  for (int i = 0; i < 10; ++i) {
+    replay.Arrive(100 + 0.001 * i, 5 + 0.1 * i, false);  // as fast as the queue takes them
+    if (replay.ahead() && ahead_at < 0) ahead_at = i;
+  }
+  EXPECT_EQ(ahead_at, 3);  // 0.3 s of sensor time in 3 ms: more than two periods
+  // Then held back: one scan per 300 ms frame, each after the queue refused it, for minutes.
+  for (int i = 10; i < 1000; ++i) {
+    replay.Arrive(100 + 0.3 * i, 5 + 0.1 * i, true);
+    ASSERT_TRUE(replay.ahead()) << i;
+  }
+  // A pause of the sender's own starts a new run, which keeps to the clock.
+  replay.Arrive(1000, 200, false);
+  replay.Arrive(1000.1, 200.1, false);
+  EXPECT_FALSE(replay.ahead());
+
+  // No timestamps: no clock, never ahead.
+  SensorClock none;
+  for (int i = 0; i < 20; ++i) none.Arrive(100 + 0.001 * i, 0, false);
+  EXPECT_FALSE(none.ahead());
+}
+
+// Nothing waits for an upload or a replay but its sender: a full queue pushes the sender back,
+// and every frame trains the configured iterations, on the configured batch. A stream that says
+// it is real time but sends its scans ahead of their timestamps is a replay too.
+TEST(SessionTest, AReplayTrainsTheConfiguredIterationsWhateverItsQueue) {
+  for (const bool real_time : {false, true}) {
+    SessionOptions options;
+    options.queue_length = 4;
+    auto session = Session::Create("robot_r", SmallConfig(), options);
+    ASSERT_TRUE(session.ok());
+    std::mutex mu;
+    std::vector<int> iterations, rays;
+    int pushed_back = 0;
+    for (int i = 0; i < 16; ++i) {
+      PosedScan scan = Scan(0.05f * float(i));
+      scan.timestamp_s = 0.1 * i;  // a 10 Hz drive, sent as fast as the queue takes it
+      absl::Status submitted;
+      while (true) {
+        submitted = (*session)->Submit(
+            uint64_t(i), scan,
+            [&](const IntegratedAck& ack) {
+              std::lock_guard<std::mutex> lock(mu);
+              iterations.push_back(ack.iterations);
+              rays.push_back(ack.rays_per_iteration);
+            },
+            real_time);
+        if (!absl::IsResourceExhausted(submitted)) break;
+        ++pushed_back;
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      }
+      ASSERT_TRUE(submitted.ok()) << submitted;
+    }
+    (*session)->Drain();
+    EXPECT_GT(pushed_back, 0) << "real_time " << real_time;
+    EXPECT_FALSE((*session)->Stats().real_time);
+    ASSERT_EQ(iterations.size(), 16u);
+    for (size_t k = 0; k < iterations.size(); ++k) {
+      EXPECT_EQ(iterations[k], 8) << "real_time " << real_time << ", frame " << k;
+      EXPECT_EQ(rays[k], 128) << "real_time " << real_time << ", frame " << k;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace rim::server
