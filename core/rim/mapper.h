@@ -40,6 +40,7 @@ class MapGeometry;
 class MeshBlockCache;
 class MeshChangeLog;
 struct MeshUpdateStats;
+struct MeshCacheTotals;
 
 // Per-frame stage times (§3.4 step 4), seconds; training stages are summed over iterations.
 struct StageTimings {
@@ -188,11 +189,14 @@ class Mapper {
   std::vector<TileInfo> ListTiles(uint64_t since_version) const;
   // Marching cubes over one sub-map's observed voxels; neighbouring tiles share border vertices.
   absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key) const;
-  // The same mesh (same vertices and faces, possibly in another order), re-meshing only the
-  // blocks that changed since this tile was last meshed here: blocks are cached for the tiles
-  // near the box (mesh/mesher.h, MeshBlockCache). While the decoder trains, every block changes
-  // with every frame.
+  // The tile, re-meshing only the blocks that changed visibly since this tile was last meshed
+  // here: blocks are cached for the tiles near the box (mesh/mesher.h, MeshBlockCache), and a
+  // block whose SDF at the mesh grid moved by no more than mesh.remesh_tolerance_m keeps its mesh.
+  // Every value the tile is meshed from is within that tolerance of the map's; with 0 it is
+  // ExtractMeshTile's mesh (same vertices and faces, possibly in another order).
   absl::StatusOr<Mesh> MeshTile(const Int3& key, MeshUpdateStats* stats = nullptr) const;
+  // Blocks meshed, checked and skipped by MeshTile since creation.
+  MeshCacheTotals MeshTotals() const;
 
   // Observed finest voxels of one sub-map (minimum-corner lattice indices): what its tile meshes.
   std::vector<Int3> ObservedVoxels(const Int3& key) const;

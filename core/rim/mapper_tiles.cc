@@ -92,8 +92,11 @@ absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) c
     }
   }
   MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
-  return mesh_cache_->Update(src, config_.mesh.resolution_m, key, *mesh_changes_, keep, stats);
+  return mesh_cache_->Update(src, config_.mesh.resolution_m, config_.mesh.remesh_tolerance_m, key,
+                             *mesh_changes_, keep, stats);
 }
+
+MeshCacheTotals Mapper::MeshTotals() const { return mesh_cache_->Totals(); }
 
 std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
   std::shared_lock lock(mu_);

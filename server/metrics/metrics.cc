@@ -18,6 +18,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/version.h"
+#include "rim/mesh/mesher.h"
 #include "server/session/session_manager.h"
 
 namespace rim::server {
@@ -247,6 +248,19 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         "rim_transient_points_removed_total",
         "Returns dropped because later rays passed clearly through them (moving things), by store",
         prometheus::MetricType::Counter);
+    auto checked = CollectedFamily(
+        "rim_mesh_blocks_checked_total",
+        "Cached mesh blocks that a map change reached, whose SDF at the mesh grid was evaluated "
+        "again and compared with the values they were meshed from",
+        prometheus::MetricType::Counter);
+    auto skipped = CollectedFamily(
+        "rim_mesh_blocks_skipped_total",
+        "Of the checked mesh blocks, those kept without re-meshing: no SDF value moved by more "
+        "than mesh.remesh_tolerance_m",
+        prometheus::MetricType::Counter);
+    auto skipped_share = GaugeFamily(
+        "rim_mesh_blocks_skipped_share",
+        "Share of the checked mesh blocks kept without re-meshing, since the session started");
     double sessions = 0;
     if (sessions_ != nullptr) {
       for (const auto& session : sessions_->List()) {
@@ -268,6 +282,11 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&wal, id, double(s.wal_bytes));
         AddValue(&transient, {id[0], {"store", "buffer"}}, double(m.transient_buffer_removed));
         AddValue(&transient, {id[0], {"store", "deferred"}}, double(m.transient_deferred_removed));
+        const MeshCacheTotals mesh = session->mapper().MeshTotals();
+        AddValue(&checked, id, double(mesh.blocks_checked));
+        AddValue(&skipped, id, double(mesh.blocks_skipped));
+        AddGauge(&skipped_share, id,
+                 mesh.blocks_checked > 0 ? double(mesh.blocks_skipped) / mesh.blocks_checked : 0);
       }
     }
     AddGauge(&active, {}, sessions);
@@ -279,8 +298,9 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
     AddGauge(&device, {}, 0);
-    return {build,   active, queue,      lag, iterations, rays,   loss, real_time,
-            submaps, memory, checkpoint, wal, transient,  budget, rss,  device};
+    return {build,     active,        queue,  lag,        iterations, rays,      loss,
+            real_time, submaps,       memory, checkpoint, wal,        transient, checked,
+            skipped,   skipped_share, budget, rss,        device};
   }
 
  private:

@@ -25,20 +25,32 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   MeshUpdateStats stats;
   auto mesh = mapper.MeshTile(tile.key, &stats);
   if (!mesh.ok()) return mesh.status();
-  const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
-  const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-  auto draco = codec::EncodeTileDraco(*mesh, lo, hi);
-  if (!draco.ok())
-    return absl::InternalError(absl::StrCat("encoding tile (", tile.key.x(), ",", tile.key.y(), ",",
-                                            tile.key.z(), "): ", draco.status().message()));
+  std::shared_ptr<const EncodedTile> same;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = tiles_.find(tile.key);
+    if (it != tiles_.end() && it->second->generation == stats.generation) same = it->second;
+  }
   auto encoded = std::make_shared<EncodedTile>();
+  if (same) {
+    // The same mesh as the cached encoding's: no block changed visibly.
+    *encoded = *same;
+  } else {
+    const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
+    const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
+    auto draco = codec::EncodeTileDraco(*mesh, lo, hi);
+    if (!draco.ok())
+      return absl::InternalError(absl::StrCat("encoding tile (", tile.key.x(), ",", tile.key.y(),
+                                              ",", tile.key.z(), "): ", draco.status().message()));
+    encoded->draco = std::move(*draco);
+    encoded->vertex_count = uint32_t(mesh->vertices.size());
+    // The faces a decoder gets back: the encoder leaves out those with a repeated vertex.
+    encoded->face_count = 0;
+    for (const auto& f : mesh->faces)
+      encoded->face_count += f[0] != f[1] && f[1] != f[2] && f[0] != f[2];
+    encoded->generation = stats.generation;
+  }
   encoded->version = tile.version;
-  encoded->draco = std::move(*draco);
-  encoded->vertex_count = uint32_t(mesh->vertices.size());
-  // The faces a decoder gets back: the encoder leaves out those with a repeated vertex.
-  encoded->face_count = 0;
-  for (const auto& f : mesh->faces)
-    encoded->face_count += f[0] != f[1] && f[1] != f[2] && f[0] != f[2];
   if (on_encoded_)
     on_encoded_(encoded->draco.size(),
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),

@@ -20,6 +20,9 @@ struct EncodedTile {
   std::string draco;
   uint32_t vertex_count = 0;
   uint32_t face_count = 0;  // faces in the payload (degenerate ones are not encoded)
+  // The mesh's generation (MeshUpdateStats): a newer version of the tile with the same generation
+  // has the same mesh, and takes these bytes instead of being encoded again.
+  uint64_t generation = 0;
 };
 
 class TileCache {
@@ -30,7 +33,8 @@ class TileCache {
   explicit TileCache(EncodedFn on_encoded = nullptr) : on_encoded_(std::move(on_encoded)) {}
 
   // The tile at `tile.version` or newer: from the cache when its encoding is that recent,
-  // otherwise meshed (Mapper::MeshTile: only its changed blocks) and encoded now. A tile that
+  // otherwise meshed (Mapper::MeshTile: only its visibly changed blocks) and encoded now, unless
+  // no block changed visibly (the cached encoding is then tagged with the new version). A tile that
   // changes while being meshed is tagged with the version read before, so it is simply
   // re-encoded next time.
   absl::StatusOr<std::shared_ptr<const EncodedTile>> Get(const Mapper& mapper,

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <map>
 #include <random>
 #include <string>
 #include <vector>
@@ -154,7 +155,9 @@ void BM_MeshTile(benchmark::State& state) {
 void BM_MeshUpdate(benchmark::State& state) {
   const bool incremental = state.range(0) != 0;
   const int frames_per_push = int(state.range(1));
-  absl::StatusOr<std::unique_ptr<Mapper>> created = Mapper::Create(Preset("maicity_online"));
+  MapperConfig config = Preset("maicity_online");
+  config.mesh.remesh_tolerance_m = float(state.range(2)) * 1e-3f;
+  absl::StatusOr<std::unique_ptr<Mapper>> created = Mapper::Create(config);
   CheckOk(created.status(), "Mapper::Create");
   Mapper& mapper = **created;
   const std::vector<PosedScan>& frames = CitySequence();
@@ -169,7 +172,9 @@ void BM_MeshUpdate(benchmark::State& state) {
   }
   int next = start;
   size_t tiles = 0, faces = 0, pushes = 0;
-  int64_t blocks = 0, remeshed = 0;
+  int64_t blocks = 0, remeshed = 0, checked = 0, skipped = 0;
+  // A tile whose mesh generation did not move keeps its encoding (server/session/tile_cache.h).
+  std::map<std::array<int, 3>, uint64_t> generations;
   WallClock mesh_clock, encode_clock;
   std::vector<double> push_ms;
   for (auto _ : state) {
@@ -189,16 +194,22 @@ void BM_MeshUpdate(benchmark::State& state) {
           incremental ? mapper.MeshTile(tile.key, &stats) : mapper.ExtractMeshTile(tile.key);
       mesh_clock.Stop();
       CheckOk(m.status(), "MeshTile");
-      encode_clock.Start();
-      const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
-      const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-      CheckOk(codec::EncodeTileDraco(*m, lo, hi).status(), "EncodeTileDraco");
-      encode_clock.Stop();
+      uint64_t& generation = generations[{tile.key.x(), tile.key.y(), tile.key.z()}];
+      if (!incremental || stats.generation != generation) {
+        encode_clock.Start();
+        const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
+        const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
+        CheckOk(codec::EncodeTileDraco(*m, lo, hi).status(), "EncodeTileDraco");
+        encode_clock.Stop();
+      }
+      generation = stats.generation;
       newest = std::max(newest, tile.version);
       ++tiles;
       faces += m->faces.size();
       blocks += stats.blocks;
       remeshed += stats.blocks_remeshed;
+      checked += stats.blocks_checked;
+      skipped += stats.blocks_skipped;
     }
     since = newest;
     push_ms.push_back(1e3 * (mesh_clock.seconds() + encode_clock.seconds() - before));
@@ -213,9 +224,13 @@ void BM_MeshUpdate(benchmark::State& state) {
   state.counters["mesh_ms_per_tile"] = 1e3 * mesh_clock.seconds() / std::max<double>(1, tiles);
   state.counters["encode_ms_per_tile"] = 1e3 * encode_clock.seconds() / std::max<double>(1, tiles);
   state.counters["push_ms_median"] = push_ms.empty() ? 0 : push_ms[push_ms.size() / 2];
-  if (incremental)
+  if (incremental) {
     state.counters["blocks_remeshed_fraction"] =
         double(remeshed) / std::max<double>(1, double(blocks));
+    // Of the blocks a change reached, those whose SDF stayed within mesh.remesh_tolerance_m.
+    state.counters["blocks_skipped_fraction"] =
+        double(skipped) / std::max<double>(1, double(checked));
+  }
 }
 
 void BM_DracoEncodeTile(benchmark::State& state) {
@@ -282,10 +297,11 @@ void RegisterMapBenchmarks() {
   // Thirty frames: pushes after every frame, from scratch and incremental, and every tenth frame
   // (a watcher at watch.min_interval_s = 1 s of a robot at 10 Hz), incremental.
   benchmark::RegisterBenchmark("MeshUpdate", BM_MeshUpdate)
-      ->ArgNames({"incremental", "frames_per_push"})
-      ->Args({0, 1})
-      ->Args({1, 1})
-      ->Args({1, 10})
+      ->ArgNames({"incremental", "frames_per_push", "remesh_tolerance_mm"})
+      ->Args({0, 1, 0})
+      ->Args({1, 1, 0})
+      ->Args({1, 10, 0})
+      ->Args({1, 10, 5})
       ->Iterations(30)
       ->Unit(benchmark::kMillisecond)
       ->UseRealTime();

@@ -1,4 +1,4 @@
-// MeshChangeLog: which mesh blocks a recorded change makes stale.
+// MeshChangeLog: which mesh blocks a recorded change makes stale; the meshing config keys.
 #include "rim/mesh/mesher.h"
 
 #include <gtest/gtest.h>
@@ -57,6 +57,23 @@ TEST(WatchConfigTest, BadMinIntervalIsRefusedByName) {
   MapperConfig c;
   ASSERT_TRUE(ApplyOverrides({"watch.min_interval_s=0"}, &c).ok());
   EXPECT_EQ(c.watch.min_interval_s, 0.f);
+}
+
+TEST(MeshConfigTest, BadRemeshToleranceIsRefusedByName) {
+  for (const char* bad : {"mesh.remesh_tolerance_m=-0.001", "mesh.remesh_tolerance_m=nan",
+                          "mesh.remesh_tolerance_m=inf", "mesh.remesh_tolerance_m=0.06"}) {
+    MapperConfig c;
+    const absl::Status s = ApplyOverrides({bad}, &c);
+    ASSERT_FALSE(s.ok()) << bad;
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(std::string(s.message()).find("mesh.remesh_tolerance_m"), std::string::npos) << s;
+    EXPECT_EQ(c.mesh.remesh_tolerance_m, 0.005f) << "a refused override changed the config";
+  }
+  // At most the mesh voxel, and 0 (re-mesh whenever the map under a block changed).
+  for (const char* good : {"mesh.remesh_tolerance_m=0", "mesh.remesh_tolerance_m=0.05"}) {
+    MapperConfig c;
+    EXPECT_TRUE(ApplyOverrides({good}, &c).ok()) << good;
+  }
 }
 
 }  // namespace

@@ -85,6 +85,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("submap.spill_dir", c.submap.spill_dir);
   v("submap.background_save", c.submap.background_save);
   v("mesh.resolution_m", c.mesh.resolution_m);
+  v("mesh.remesh_tolerance_m", c.mesh.remesh_tolerance_m);
   v("query.max_distance_m", c.query.max_distance_m);
   v("query.refresh_frames", c.query.refresh_frames);
   v("query.surfel_radius_voxels", c.query.surfel_radius_voxels);
@@ -274,6 +275,8 @@ absl::Status MapperConfig::Validate() const {
     return Bad("mesh.resolution_m", "must be > 0 and divide grid.leaf_size_m");
   if (grid.leaf_size_m / mesh.resolution_m > 16.5f)
     return Bad("mesh.resolution_m", "must be >= grid.leaf_size_m / 16");
+  if (!(mesh.remesh_tolerance_m >= 0.f) || mesh.remesh_tolerance_m > mesh.resolution_m)
+    return Bad("mesh.remesh_tolerance_m", "must be in [0, mesh.resolution_m]");
   return absl::OkStatus();
 }
 

@@ -163,6 +163,9 @@ struct QueryConfig {
 
 struct MeshConfig {
   float resolution_m = 0.05f;  // must divide the leaf size
+  // A cached mesh block is re-meshed only when its SDF at the mesh grid moved by more than this
+  // since it was meshed (metres, in [0, resolution_m]; 0: whenever the map under it changed).
+  float remesh_tolerance_m = 0.005f;
 };
 
 // Mesh tile pushes to dashboards (the service's WatchMeshTiles): each tile is pushed at most once

@@ -16,15 +16,22 @@ namespace rim {
 
 // One block's share of a tile: the mesh of the cells whose minimum corner lies in the block.
 struct MeshBlockCache::Piece {
-  uint64_t stamp = 0;  // MeshChangeLog stamp taken before the block's map was read
+  // MeshChangeLog stamp taken before the block's map was read, when it was meshed or last found
+  // within the tolerance of the values it was meshed from.
+  uint64_t stamp = 0;
   std::vector<std::array<float, 3>> vertices;
   std::vector<std::array<uint32_t, 3>> faces;
   // Vertices on the block's faces, which cells of a neighbouring block can share, with their edges.
   std::vector<std::pair<uint32_t, GridEdge>> shared;
+  // What the mesh was made from: a hash of the block's observed voxels (which fix its grid points
+  // and their order) and the SDF at those points. Empty values: not kept (tolerance 0).
+  uint64_t voxels_hash = 0;
+  std::vector<float> values;
 
   int64_t Bytes() const {
     return int64_t(sizeof(Piece) + vertices.capacity() * sizeof(vertices[0]) +
-                   faces.capacity() * sizeof(faces[0]) + shared.capacity() * sizeof(shared[0]));
+                   faces.capacity() * sizeof(faces[0]) + shared.capacity() * sizeof(shared[0]) +
+                   values.capacity() * sizeof(values[0]));
   }
 };
 
@@ -49,7 +56,12 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
     by_block[FloorDiv(g, Int3::Constant(kMeshBlockVoxels))].push_back(g);
   }
   out.blocks.reserve(by_block.size());
-  for (auto& [block, voxels] : by_block) out.blocks.emplace_back(block, std::move(voxels));
+  for (auto& [block, voxels] : by_block) {
+    // Voxels in key order: a block's grid points come in an order fixed by its voxels alone, so
+    // values kept from an earlier meshing line up with values evaluated now.
+    std::sort(voxels.begin(), voxels.end(), KeyLess);
+    out.blocks.emplace_back(block, std::move(voxels));
+  }
   std::sort(out.blocks.begin(), out.blocks.end(),
             [](const auto& a, const auto& b) { return KeyLess(a.first, b.first); });
   return out;
@@ -59,8 +71,20 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
 // allocated or cleared per block.
 struct BlockScratch {
   std::vector<float> rows[kMaxLevels];  // GridEncoder's lattice rows, written before read
-  std::vector<int32_t> point_index;     // MeshBlock's grid point table, all -1 between blocks
+  std::vector<int32_t> point_index;     // BlockGrid's point table, all -1 between blocks
+  std::vector<float> features;
 };
+
+uint64_t HashVoxels(const std::vector<Int3>& voxels) {
+  uint64_t h = 0x9E3779B97F4A7C15ull ^ voxels.size();
+  for (const Int3& g : voxels) {
+    const uint64_t v = (uint64_t(uint32_t(g.x())) << 42) ^ (uint64_t(uint32_t(g.y())) << 21) ^
+                       uint64_t(uint32_t(g.z()));
+    h = (h ^ v) * 0x100000001B3ull;
+    h ^= h >> 29;
+  }
+  return h;
+}
 
 // The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
 // lies at m / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
@@ -217,74 +241,105 @@ class GridEncoder {
   Level levels_[kMaxLevels];
 };
 
-// Meshes one block: the cells of its observed voxels at r cells per voxel edge. Grid points and
-// voxels are indexed densely within the block. Caller holds the shared lock.
-std::shared_ptr<Piece> MeshBlock(const MeshTileSource& src, int r, double step, const Int3& block,
-                                 const std::vector<Int3>& voxels, FeatureReader& reader,
-                                 BlockScratch& scratch) {
-  constexpr int B = kMeshBlockVoxels;
-  const int n = B * r + 1;  // grid points per axis
-  const Int3 voxel0 = block * B;
-  const Int3 point0 = voxel0 * r;
-  auto piece = std::make_shared<Piece>();
-
-  // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
-  // corner), so it counts as observed: a point is observed when any voxel that shares it is.
-  // Per grid point: -1 not a corner of the block's cells, else its index in `points`. The table
-  // is the call's, all -1 between blocks: the entries set here are reset before returning.
-  std::vector<int32_t>& point_index = scratch.point_index;
-  if (point_index.size() != size_t(n) * n * n) point_index.assign(size_t(n) * n * n, -1);
-  auto local = [n](const Int3& m) { return (size_t(m.x()) * n + m.y()) * n + m.z(); };
-  std::vector<Int3> cells, points;
-  cells.reserve(voxels.size() * r * r * r);
-  points.reserve(voxels.size() * (r + 1) * (r + 1) * (r + 1) / 2);
-  for (const Int3& g : voxels) {
-    const Int3 c0 = (g - voxel0) * r;
-    for (int i = 0; i < r; ++i)
-      for (int j = 0; j < r; ++j)
-        for (int k = 0; k < r; ++k) cells.push_back(point0 + c0 + Int3(i, j, k));
-    // The voxel's (r + 1)³ grid points: the corners of its cells. (Their order in `points` does
-    // not matter: a point's value does not depend on its batch.)
-    for (int i = 0; i <= r; ++i)
-      for (int j = 0; j <= r; ++j) {
-        const size_t row = local(c0 + Int3(i, j, 0));
-        for (int k = 0; k <= r; ++k) {
-          int32_t& idx = point_index[row + size_t(k)];
-          if (idx >= 0) continue;
-          idx = int32_t(points.size());
-          points.push_back(c0 + Int3(i, j, k));
+// One block's mesh grid: the cells of its observed voxels at r cells per voxel edge, their grid
+// points (dense-indexed in the scratch table while the grid lives) and the SDF at them.
+class BlockGrid {
+ public:
+  // Evaluates the block's grid. Caller holds the shared lock.
+  BlockGrid(const MeshTileSource& src, int r, const Int3& block, const std::vector<Int3>& voxels,
+            FeatureReader& reader, BlockScratch& scratch)
+      : r_(r),
+        n_(kMeshBlockVoxels * r + 1),
+        point0_(block * kMeshBlockVoxels * r),
+        scratch_(scratch) {
+    const Int3 voxel0 = block * kMeshBlockVoxels;
+    // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
+    // corner), so it counts as observed: a point is observed when any voxel that shares it is.
+    // Per grid point: -1 not a corner of the block's cells, else its index in `points_`. The
+    // table is the call's, all -1 between blocks: the destructor resets the entries set here.
+    std::vector<int32_t>& point_index = scratch.point_index;
+    if (point_index.size() != size_t(n_) * n_ * n_) point_index.assign(size_t(n_) * n_ * n_, -1);
+    cells_.reserve(voxels.size() * r * r * r);
+    points_.reserve(voxels.size() * (r + 1) * (r + 1) * (r + 1) / 2);
+    for (const Int3& g : voxels) {
+      const Int3 c0 = (g - voxel0) * r;
+      for (int i = 0; i < r; ++i)
+        for (int j = 0; j < r; ++j)
+          for (int k = 0; k < r; ++k) cells_.push_back(point0_ + c0 + Int3(i, j, k));
+      // The voxel's (r + 1)³ grid points: the corners of its cells, in an order fixed by the
+      // voxels (a point's value does not depend on its batch).
+      for (int i = 0; i <= r; ++i)
+        for (int j = 0; j <= r; ++j) {
+          const size_t row = Local(c0 + Int3(i, j, 0));
+          for (int k = 0; k <= r; ++k) {
+            int32_t& idx = point_index[row + size_t(k)];
+            if (idx >= 0) continue;
+            idx = int32_t(points_.size());
+            points_.push_back(c0 + Int3(i, j, k));
+          }
         }
-      }
+    }
+    if (points_.empty()) return;
+    const int F = src.geometry.encoding_dim();
+    if (scratch.features.size() < points_.size() * F) scratch.features.resize(points_.size() * F);
+    values_.resize(points_.size());
+    GridEncoder encoder(src.geometry, r, point0_, n_, reader, scratch);
+    encoder.EncodeAll(points_, scratch.features.data());
+    src.decoder.Forward(scratch.features.data(), int(points_.size()), values_.data());
   }
-  if (points.empty()) return piece;
-
-  const int F = src.geometry.encoding_dim();
-  std::vector<float> features(points.size() * F), values(points.size());
-  GridEncoder encoder(src.geometry, r, point0, n, reader, scratch);
-  encoder.EncodeAll(points, features.data());
-  src.decoder.Forward(features.data(), int(points.size()), values.data());
-
-  DenseGridSamples samples;
-  samples.step_m = float(step);
-  samples.first = point0;
-  samples.n = n;
-  samples.index = point_index.data();
-  samples.values = values.data();
-  samples.count = values.size();
-  std::vector<GridEdge> edges;
-  Mesh mesh = MarchingCubes(cells, samples, &edges);
-  for (const Int3& m : points) point_index[local(m)] = -1;
-  piece->vertices = std::move(mesh.vertices);
-  piece->faces = std::move(mesh.faces);
-  const int last = B * r;
-  for (size_t i = 0; i < edges.size(); ++i) {
-    const Int3 m = edges[i].lower - point0;
-    bool on_face = false;
-    for (int a = 0; a < 3; ++a)
-      if (a != edges[i].axis && (m[a] == 0 || m[a] == last)) on_face = true;
-    if (on_face) piece->shared.emplace_back(uint32_t(i), edges[i]);
+  ~BlockGrid() {
+    for (const Int3& m : points_) scratch_.point_index[Local(m)] = -1;
   }
-  return piece;
+  BlockGrid(const BlockGrid&) = delete;
+  BlockGrid& operator=(const BlockGrid&) = delete;
+
+  const std::vector<float>& values() const { return values_; }
+
+  // Marching cubes over the cells. `keep_values`: the piece keeps the values it is made from.
+  std::shared_ptr<Piece> March(double step, bool keep_values) {
+    auto piece = std::make_shared<Piece>();
+    if (points_.empty()) return piece;
+    DenseGridSamples samples;
+    samples.step_m = float(step);
+    samples.first = point0_;
+    samples.n = n_;
+    samples.index = scratch_.point_index.data();
+    samples.values = values_.data();
+    samples.count = values_.size();
+    std::vector<GridEdge> edges;
+    Mesh mesh = MarchingCubes(cells_, samples, &edges);
+    piece->vertices = std::move(mesh.vertices);
+    piece->faces = std::move(mesh.faces);
+    const int last = kMeshBlockVoxels * r_;
+    for (size_t i = 0; i < edges.size(); ++i) {
+      const Int3 m = edges[i].lower - point0_;
+      bool on_face = false;
+      for (int a = 0; a < 3; ++a)
+        if (a != edges[i].axis && (m[a] == 0 || m[a] == last)) on_face = true;
+      if (on_face) piece->shared.emplace_back(uint32_t(i), edges[i]);
+    }
+    if (keep_values) piece->values = std::move(values_);
+    return piece;
+  }
+
+ private:
+  size_t Local(const Int3& m) const { return (size_t(m.x()) * n_ + m.y()) * n_ + m.z(); }
+
+  const int r_, n_;  // cells per voxel edge, grid points per block edge
+  const Int3 point0_;
+  BlockScratch& scratch_;
+  std::vector<Int3> cells_, points_;
+  std::vector<float> values_;
+};
+
+// Whether every value is within `tolerance` of the one kept.
+bool WithinTolerance(const std::vector<float>& kept, const std::vector<float>& now,
+                     float tolerance) {
+  if (kept.size() != now.size()) return false;
+  // No early exit: the loop vectorises, and most blocks pass.
+  float worst = 0.f;
+  for (size_t i = 0; i < now.size(); ++i) worst = std::max(worst, std::abs(now[i] - kept[i]));
+  return worst <= tolerance;
 }
 
 // Joins block pieces into one indexed mesh, welding the vertices that lie on a shared grid edge.
@@ -327,12 +382,16 @@ absl::StatusOr<int> CellsPerVoxel(const MapGeometry& geo, float resolution_m) {
   return r;
 }
 
-// Meshes a tile from its blocks: a block whose piece in `cached` is still current (no change in
-// `log` since the piece's stamp reaches it) is reused, the others are meshed now.
+// Meshes a tile from its blocks. A block whose piece in `cached` is still current (no change in
+// `log` since the piece's stamp reaches it) is reused; one that a change reaches is evaluated
+// again and reused when its values are within `tolerance` of those it was meshed from (and its
+// voxels are the same); the others are meshed now. `changed` (with `cached`): whether the tile's
+// mesh differs from the one its cached pieces made.
 absl::StatusOr<Mesh> MeshTileBlocks(
-    const MeshTileSource& src, float resolution_m, const Int3& key, const MeshChangeLog* log,
-    absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal>* cached,
-    MeshUpdateStats* stats) {
+    const MeshTileSource& src, float resolution_m, float tolerance, const Int3& key,
+    const MeshChangeLog* log,
+    absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal>* cached,
+    MeshUpdateStats* stats, bool* changed) {
   const MapGeometry& geo = src.geometry;
   auto r = CellsPerVoxel(geo, resolution_m);
   if (!r.ok()) return r.status();
@@ -342,38 +401,59 @@ absl::StatusOr<Mesh> MeshTileBlocks(
   // A feature row of level l at lattice point p reaches grid points within 2^l finest voxels of
   // p, and an observed flag reaches one voxel: a block depends on the changes within this reach.
   const int reach = (1 << (geo.levels() - 1)) + 1;
+  const bool keep_values = cached && log && tolerance > 0.f;
 
   std::vector<std::shared_ptr<const Piece>> pieces;
   pieces.reserve(voxels.blocks.size());
   BlockScratch scratch;
-  absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal> next;
+  absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal> next;
   MeshUpdateStats s;
   s.blocks = int(voxels.blocks.size());
   for (const auto& [block, block_voxels] : voxels.blocks) {
+    std::shared_ptr<Piece> old;
     if (cached && log) {
       auto it = cached->find(block);
       const Int3 lo = block * kMeshBlockVoxels;
       const IntBox region{lo - Int3::Constant(reach),
                           lo + Int3::Constant(kMeshBlockVoxels + reach)};
-      if (it != cached->end() && !log->ChangedSince(it->second->stamp, region)) {
-        pieces.push_back(it->second);
-        next.emplace(block, it->second);
+      if (it != cached->end()) {
+        if (!log->ChangedSince(it->second->stamp, region)) {
+          pieces.push_back(it->second);
+          next.emplace(block, it->second);
+          continue;
+        }
+        old = it->second;
+      }
+    }
+    const uint64_t hash = keep_values ? HashVoxels(block_voxels) : 0;
+    std::shared_lock lock(src.mutex);
+    FeatureReader reader(src.local_map, src.store);
+    BlockGrid grid(src, *r, block, block_voxels, reader, scratch);
+    lock.unlock();
+    if (old && !old->values.empty() && old->voxels_hash == hash) {
+      ++s.blocks_checked;
+      if (WithinTolerance(old->values, grid.values(), tolerance)) {
+        // Not visibly changed: the mesh stays, measured against the values it was made from.
+        ++s.blocks_skipped;
+        old->stamp = stamp;
+        pieces.push_back(old);
+        next.emplace(block, std::move(old));
         continue;
       }
     }
-    std::shared_ptr<Piece> piece;
-    {
-      std::shared_lock lock(src.mutex);
-      FeatureReader reader(src.local_map, src.store);
-      piece = MeshBlock(src, *r, step, block, block_voxels, reader, scratch);
-    }
+    std::shared_ptr<Piece> piece = grid.March(step, keep_values);
     piece->stamp = stamp;
+    piece->voxels_hash = hash;
     ++s.blocks_remeshed;
+    if (stats) s.remeshed.push_back(block);
     pieces.push_back(piece);
     if (cached) next.emplace(block, std::move(piece));
   }
-  if (cached) *cached = std::move(next);
-  if (stats) *stats = s;
+  if (cached) {
+    if (changed) *changed = s.blocks_remeshed > 0 || next.size() != cached->size();
+    *cached = std::move(next);
+  }
+  if (stats) *stats = std::move(s);
   return Weld(pieces);
 }
 
@@ -413,7 +493,7 @@ std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
 }
 
 absl::StatusOr<Mesh> ExtractTile(const MeshTileSource& src, float resolution_m, const Int3& key) {
-  return MeshTileBlocks(src, resolution_m, key, nullptr, nullptr, nullptr);
+  return MeshTileBlocks(src, resolution_m, 0.f, key, nullptr, nullptr, nullptr, nullptr);
 }
 
 uint64_t MeshChangeLog::Stamp() const {
@@ -450,7 +530,8 @@ bool MeshChangeLog::ChangedSince(uint64_t stamp, const IntBox& region) const {
 }
 
 absl::StatusOr<Mesh> MeshBlockCache::Update(const MeshTileSource& src, float resolution_m,
-                                            const Int3& key, const MeshChangeLog& log, bool keep,
+                                            float tolerance_m, const Int3& key,
+                                            const MeshChangeLog& log, bool keep,
                                             MeshUpdateStats* stats) {
   std::shared_ptr<Tile> tile;
   {
@@ -460,8 +541,20 @@ absl::StatusOr<Mesh> MeshBlockCache::Update(const MeshTileSource& src, float res
     tile = slot;
   }
   std::lock_guard<std::mutex> tile_lock(tile->mu);
-  auto mesh = MeshTileBlocks(src, resolution_m, key, &log, &tile->pieces, stats);
+  MeshUpdateStats s;
+  bool changed = true;
+  auto mesh =
+      MeshTileBlocks(src, resolution_m, tolerance_m, key, &log, &tile->pieces, &s, &changed);
   std::lock_guard<std::mutex> lock(mu_);
+  if (mesh.ok()) {
+    totals_.blocks += s.blocks;
+    totals_.blocks_remeshed += s.blocks_remeshed;
+    totals_.blocks_checked += s.blocks_checked;
+    totals_.blocks_skipped += s.blocks_skipped;
+  }
+  if (changed || tile->generation == 0) tile->generation = ++generations_;
+  s.generation = tile->generation;
+  if (stats) *stats = std::move(s);
   if (!mesh.ok() || !keep) {
     tile->pieces.clear();
     tile->bytes = 0;
@@ -473,6 +566,11 @@ absl::StatusOr<Mesh> MeshBlockCache::Update(const MeshTileSource& src, float res
   for (const auto& [block, piece] : tile->pieces) bytes += piece->Bytes();
   tile->bytes = bytes;
   return mesh;
+}
+
+MeshCacheTotals MeshBlockCache::Totals() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return totals_;
 }
 
 int64_t MeshBlockCache::MemoryBytes() const {

@@ -74,30 +74,53 @@ class MeshChangeLog {
 struct MeshUpdateStats {
   int blocks = 0;           // observed blocks of the tile
   int blocks_remeshed = 0;  // of them, meshed now (the others came from the cache)
+  // Blocks that a change reached since their last meshing, whose SDF was evaluated again and
+  // compared with the values they were meshed from; of them, those kept because no value moved
+  // by more than the tolerance (skipped: not re-meshed).
+  int blocks_checked = 0;
+  int blocks_skipped = 0;
+  std::vector<Int3> remeshed;  // keys (FloorDiv(voxel, kMeshBlockVoxels)) of the blocks meshed now
+  // Names the tile's mesh: two updates of a tile that return the same generation returned the
+  // same mesh (no block was re-meshed or dropped in between), so its encoding can be reused.
+  uint64_t generation = 0;
 };
 
-// Per-block meshes of the tiles that can still change. Update() re-meshes the blocks that a change
-// recorded since their last meshing touches, reuses the others and welds them into the tile, which
-// is the same mesh as ExtractTile's (same vertices and faces, possibly in another order). Thread
-// safe; two updates of one tile run one after the other.
+// Totals over a cache's updates (MeshBlockCache::Totals), for the service's metrics.
+struct MeshCacheTotals {
+  int64_t blocks = 0, blocks_remeshed = 0, blocks_checked = 0, blocks_skipped = 0;
+};
+
+// Per-block meshes of the tiles that can still change. Update() re-meshes the blocks that changed
+// visibly since their last meshing, reuses the others and welds them into the tile. A block that a
+// change recorded since its last meshing reaches has its SDF evaluated again at its grid points;
+// it is re-meshed only when a value moved by more than `tolerance_m` from the values it was meshed
+// from (or its observed voxels changed). With a tolerance of 0 the tile is the same mesh as
+// ExtractTile's (same vertices and faces, possibly in another order); otherwise every value it
+// was meshed from is within the tolerance of the map's value now. Thread safe; two updates of
+// one tile run one after the other.
 class MeshBlockCache {
  public:
   // `keep` says whether the tile's blocks are worth keeping afterwards (they can still change);
   // a tile far from the box is meshed the same way and then dropped from the cache.
-  absl::StatusOr<Mesh> Update(const MeshTileSource& src, float resolution_m, const Int3& key,
-                              const MeshChangeLog& log, bool keep, MeshUpdateStats* stats);
+  absl::StatusOr<Mesh> Update(const MeshTileSource& src, float resolution_m, float tolerance_m,
+                              const Int3& key, const MeshChangeLog& log, bool keep,
+                              MeshUpdateStats* stats);
   // Host memory held by the cached blocks.
   int64_t MemoryBytes() const;
+  MeshCacheTotals Totals() const;
 
   struct Piece;  // one block's mesh (mesher.cc)
  private:
   struct Tile {
     std::mutex mu;  // held through an update of this tile
-    absl::flat_hash_map<Int3, std::shared_ptr<const Piece>, Int3Hash, Int3Equal> pieces;
+    absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal> pieces;
     int64_t bytes = 0;
+    uint64_t generation = 0;
   };
   mutable std::mutex mu_;
   absl::flat_hash_map<Int3, std::shared_ptr<Tile>, Int3Hash, Int3Equal> tiles_;
+  uint64_t generations_ = 0;  // the last generation given out
+  MeshCacheTotals totals_;
 };
 
 }  // namespace rim
