@@ -23,7 +23,9 @@ Replica), or sim:city for the built-in synthetic city, generated in memory, with
 sim:city?frames=N&seed=S&step=M&columns=C&noise=M&walkers=K&threads=T (quote it in a shell;
 defaults: 100 frames, seed 1, 1 m steps, 1800 LiDAR columns, no noise, no walkers).
 
-  --rate HZ      send at most HZ scans per second (default: as fast as the server takes them)
+  --rate HZ      send at most HZ scans per second, as a live robot would: the session then
+                 trains what keeps up with the rate (default: as fast as the server takes them,
+                 a replay: every frame trains the session's full iterations, as rim_map does)
   --frames A:B   only frames A (inclusive) to B (exclusive); either end may be left out
   --retries N    when the stream breaks (server, proxy or connection gone), open a new one up to
                  N times, a second apart, and send again every scan not yet integrated; the

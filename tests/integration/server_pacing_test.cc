@@ -1,8 +1,8 @@
 // Pacing over the wire (docs/service.md, "Sharing the cores"): a stream that says it runs at a
 // sensor's rate (the `x-rim-real-time: 1` header, which the C++ client sends for a stream with a
 // rate) gets frames planned to end before the next scan, so its queue stays short; the same scans
-// at the same rate sent as an upload are trained by the queue, which fills. Both go through the
-// real rim_server and the real client on loopback. A paced frame trains on
+// at the same rate sent as an upload train every frame fully, so the queue fills. Both go through
+// the real rim_server and the real client on loopback. A paced frame trains on
 // sampler.paced_rays_per_iteration rays an iteration, an upload's on sampler.rays_per_iteration.
 #include <gtest/gtest.h>
 

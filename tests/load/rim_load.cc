@@ -31,7 +31,13 @@
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
 //                 [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]
-//                 [--set key=value ...]
+//                 [--baseline S] [--set key=value ...]
+//
+// --baseline S first runs the robots alone (no planners, no dashboards) for S seconds on sessions
+// of their own ("baseline_robot_N", summary lines under "rim_load baseline: ..."), then the load
+// as above, and ends with what the load left each robot of its training, measured on this host
+// in this run:
+//   "  ROBOT: rays trained per frame period alone N, under load N (N %)"
 //
 // --set overrides a config value of the robots' maicity sessions (as `rimctl session create
 // --set`), to compare settings under the same load; repeatable.
@@ -65,6 +71,7 @@ struct Options {
   int frames = 0;  // 0: rate x duration, at most 600
   double rate_hz = 10, duration_s = 60;
   double query_rate_hz = 0;  // batches per second per planner; 0: back to back
+  double baseline_s = 0;     // the robots alone for this long first; 0: no baseline phase
   std::vector<std::pair<std::string, std::string>> overrides;  // --set key=value
 };
 
@@ -94,6 +101,8 @@ bool Parse(int argc, char** argv, Options* o) {
       o->frames = std::atoi(v.c_str());
     else if (k == "--query-rate")
       o->query_rate_hz = std::atof(v.c_str());
+    else if (k == "--baseline")
+      o->baseline_s = std::atof(v.c_str());
     else if (k == "--set" && v.find('=') != std::string::npos && v.find('=') > 0)
       o->overrides.emplace_back(v.substr(0, v.find('=')), v.substr(v.find('=') + 1));
     else
@@ -103,7 +112,8 @@ bool Parse(int argc, char** argv, Options* o) {
          o->planners >= 0 && o->planners <= 16 && o->dashboards >= 0 && o->dashboards <= 16 &&
          o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
          o->batch <= 1000000 && o->frames >= 0 && o->frames <= 1000 &&
-         std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000;
+         std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000 &&
+         std::isfinite(o->baseline_s) && o->baseline_s >= 0 && o->baseline_s <= 3600;
 }
 
 double Quantile(std::vector<double> v, double q) {
@@ -114,35 +124,18 @@ double Quantile(std::vector<double> v, double q) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  Options o;
-  if (!Parse(argc, argv, &o)) {
-    std::fprintf(stderr,
-                 "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
-                 "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
-                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--set key=value ...]\n");
-    return 2;
-  }
-  if (!Loopback(o.server)) {
-    std::fprintf(stderr, "rim_load: only loopback servers (127.x, localhost, [::1]): %s\n",
-                 o.server.c_str());
-    return 2;
-  }
-  auto client = rim::Client::Connect(o.server);
-  if (!client.ok()) {
-    std::fprintf(stderr, "rim_load: %s\n", std::string(client.status().message()).c_str());
-    return 3;
-  }
-  // The scans: cast once, driven forward and back by every robot (robot r starts at a different
-  // frame).
-  if (o.frames == 0) o.frames = int(std::clamp(std::ceil(o.rate_hz * o.duration_s), 2.0, 600.0));
-  std::fprintf(stderr, "rim_load: casting %d city frames...\n", o.frames);
-  rim::sim::CityFrameOptions city;
-  city.frames = o.frames;
-  rim::sim::CityFrames source(city);
-  std::vector<rim::PosedScan> frames;
-  for (size_t k = 0; k < source.size(); ++k) frames.push_back(source.Frame(k));
+// What one phase of the run measured.
+struct Phase {
+  bool ok = true;  // no rejected scan, no failed RPC, integrated == accepted
+  std::vector<double> trained_per_period;  // per robot: median rays trained per frame period
+};
 
+// Runs o.robots robots, o.planners planners and o.dashboards dashboards for o.duration_s on new
+// sessions named PREFIX0, PREFIX1, ...; prints the summary (its first line "rim_load TITLE: ...")
+// and closes the sessions.
+Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::PosedScan>& frames,
+               const std::string& prefix, const char* title) {
+  Phase phase;
   const auto deadline =
       std::chrono::steady_clock::now() + std::chrono::duration<double>(o.duration_s);
   std::atomic<bool> failed{false};
@@ -157,6 +150,7 @@ int main(int argc, char** argv) {
   std::vector<std::vector<double>> rays_per_frame(o.robots);
   std::vector<std::vector<double>> trained_per_period(o.robots);
   std::vector<uint64_t> last_version(size_t(o.robots), 0);
+  phase.trained_per_period.assign(size_t(o.robots), 0);
   // Per robot: the map version of each INTEGRATED ack and when it arrived, in arrival order
   // (map versions only grow).
   using Clock = std::chrono::steady_clock;
@@ -165,12 +159,13 @@ int main(int argc, char** argv) {
   std::atomic<uint64_t> tiles{0}, tile_bytes{0}, query_points{0}, query_within{0};
 
   for (int r = 0; r < o.robots; ++r) {
-    robots.push_back("load_robot_" + std::to_string(r));
-    auto created = client->CreateSession(robots.back(), "maicity", o.overrides);
+    robots.push_back(prefix + std::to_string(r));
+    auto created = client.CreateSession(robots.back(), "maicity", o.overrides);
     if (!created.ok()) {
       std::fprintf(stderr, "rim_load: create %s: %s\n", robots.back().c_str(),
                    std::string(created.status().message()).c_str());
-      return 1;
+      phase.ok = false;
+      return phase;
     }
   }
   // The frame each robot sent last: planners ask around it, as a planner plans around its robot.
@@ -197,7 +192,7 @@ int main(int argc, char** argv) {
         }
         max_lag[r] = std::max(max_lag[r], ack.lag_frames());
       };
-      auto summary = client->Session(robots[r]).Stream(
+      auto summary = client.Session(robots[r]).Stream(
           [&](rim::v1::Scan* scan) -> absl::StatusOr<bool> {
             if (std::chrono::steady_clock::now() >= deadline) return false;
             // Forward through the frames, then back: 0, 1, ..., n-1, n-2, ..., 1, 0, 1, ...
@@ -231,7 +226,7 @@ int main(int argc, char** argv) {
         std::vector<rim::Vec3f> points(o.batch);
         for (auto& q : points) q = rim::Vec3f(c.x() + u(rng), c.y() + u(rng), u(rng) * 0.2f);
         const auto start = std::chrono::steady_clock::now();
-        auto answer = client->Session(robots[p % robots.size()]).Query(points);
+        auto answer = client.Session(robots[p % robots.size()]).Query(points);
         const double ms =
             std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
                 .count();
@@ -252,7 +247,7 @@ int main(int argc, char** argv) {
       rim::WatchOptions options;
       options.duration = std::chrono::milliseconds(int64_t(o.duration_s * 1000));
       const absl::Status s =
-          client->Session(robots[d % robots.size()])
+          client.Session(robots[d % robots.size()])
               .Watch(
                   [&, d](const rim::DecodedTile& t) {
                     const auto arrived = Clock::now();
@@ -279,10 +274,10 @@ int main(int argc, char** argv) {
 
   bool consistent = true;
   uint64_t memory = 0;
-  std::printf("rim_load: %d robots at %.1f Hz, %d planners (%d points), %d dashboards, %.0f s\n",
-              o.robots, o.rate_hz, o.planners, o.batch, o.dashboards, o.duration_s);
+  std::printf("rim_load%s: %d robots at %.1f Hz, %d planners (%d points), %d dashboards, %.0f s\n",
+              title, o.robots, o.rate_hz, o.planners, o.batch, o.dashboards, o.duration_s);
   for (int r = 0; r < o.robots; ++r) {
-    auto info = client->GetSession(robots[r]);
+    auto info = client.GetSession(robots[r]);
     if (!info.ok()) {
       failed = true;
       continue;
@@ -301,6 +296,7 @@ int main(int argc, char** argv) {
                 Quantile(rays_per_frame[r], 0.5));
     std::printf("  %s: median rays trained per frame period %.0f (frame and between frames)\n",
                 robots[r].c_str(), Quantile(trained_per_period[r], 0.5));
+    phase.trained_per_period[size_t(r)] = Quantile(trained_per_period[r], 0.5);
   }
   std::printf(
       "  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms, %.1f %% within the "
@@ -313,8 +309,62 @@ int main(int argc, char** argv) {
               (unsigned long long)tiles.load(), tile_bytes.load() / 1e6,
               Quantile(tile_latency_ms, 0.95));
   std::printf("  sessions' host memory at the end: %.0f MB\n", memory / 1e6);
-  for (const auto& r : robots) (void)client->CloseSession(r, false);
-  if (failed || !consistent) {
+  for (const auto& r : robots) (void)client.CloseSession(r, false);
+  phase.ok = !failed && consistent;
+  return phase;
+}
+
+int main(int argc, char** argv) {
+  Options o;
+  if (!Parse(argc, argv, &o)) {
+    std::fprintf(stderr,
+                 "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
+                 "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
+                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--baseline S<=3600] "
+                 "[--set key=value ...]\n");
+    return 2;
+  }
+  if (!Loopback(o.server)) {
+    std::fprintf(stderr, "rim_load: only loopback servers (127.x, localhost, [::1]): %s\n",
+                 o.server.c_str());
+    return 2;
+  }
+  auto client = rim::Client::Connect(o.server);
+  if (!client.ok()) {
+    std::fprintf(stderr, "rim_load: %s\n", std::string(client.status().message()).c_str());
+    return 3;
+  }
+  // The scans: cast once, driven forward and back by every robot (robot r starts at a different
+  // frame).
+  if (o.frames == 0) o.frames = int(std::clamp(std::ceil(o.rate_hz * o.duration_s), 2.0, 600.0));
+  std::fprintf(stderr, "rim_load: casting %d city frames...\n", o.frames);
+  rim::sim::CityFrameOptions city;
+  city.frames = o.frames;
+  rim::sim::CityFrames source(city);
+  std::vector<rim::PosedScan> frames;
+  for (size_t k = 0; k < source.size(); ++k) frames.push_back(source.Frame(k));
+
+  Phase alone;
+  if (o.baseline_s > 0) {
+    // The robots alone first, on sessions of their own: what the load below takes from them is
+    // measured on this host, in this run.
+    Options robots_only = o;
+    robots_only.planners = 0;
+    robots_only.dashboards = 0;
+    robots_only.duration_s = o.baseline_s;
+    alone = RunPhase(*client, robots_only, frames, "baseline_robot_", " baseline");
+  }
+  const Phase loaded = RunPhase(*client, o, frames, "load_robot_", "");
+  if (o.baseline_s > 0) {
+    for (int r = 0; r < o.robots; ++r) {
+      const double a = alone.trained_per_period[size_t(r)];
+      const double l = loaded.trained_per_period[size_t(r)];
+      std::printf(
+          "  load_robot_%d: rays trained per frame period alone %.0f, under load %.0f (%.0f %%)\n",
+          r, a, l, a > 0 ? 100.0 * l / a : 0.0);
+    }
+  }
+  if (!alone.ok || !loaded.ok) {
     std::printf("rim_load: FAILED (a rejected scan, a failed RPC, or integrated != accepted)\n");
     return 1;
   }

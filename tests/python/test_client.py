@@ -364,7 +364,7 @@ class ClientTest(unittest.TestCase):
 class RealTimeStreamTest(unittest.TestCase):
     """stream(real_time=True) says the scans come at a sensor's rate: the session plans each frame
     to end before the next scan, so its queue stays short. The same scans at the same rate sent as
-    an upload are trained by the queue, which fills (the server's queue holds 8)."""
+    an upload train every frame fully, so the queue fills (the server's queue holds 8)."""
 
     FRAMES = 30
 

@@ -84,10 +84,11 @@ struct StreamOptions {
   // the server reads them (its flow control paces the stream when training lags).
   double rate_hz = 0;
   // Whether the scans come at a sensor's rate, as the sensor makes them: the stream then sends the
-  // `x-rim-real-time: 1` header, and the session trains what keeps up with that rate instead of
-  // training each frame by its queue (docs/service.md, "Sharing the cores"). Unset: true when
-  // rate_hz > 0. Set it for a live source that paces itself (a sensor driver feeding `source`),
-  // or to false to replay a recording at its rate and still train each frame by the queue.
+  // `x-rim-real-time: 1` header, and the session trains what keeps up with that rate (while the
+  // scans' timestamps keep to it) instead of training every frame fully and holding the stream
+  // back when its queue is full (docs/service.md, "Replays keep the offline map"). Unset: true
+  // when rate_hz > 0. Set it for a live source that paces itself (a sensor driver feeding
+  // `source`), or to false to replay a recording at its rate and still train every frame fully.
   std::optional<bool> real_time;
   // Sequence number of the first scan; the stream numbers scans consecutively from it.
   uint64_t first_sequence = 0;

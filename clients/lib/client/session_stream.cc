@@ -62,7 +62,8 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     // No deadline: a stream lasts as long as the robot drives.
     c.Prepare(&context, robot_id_, std::chrono::milliseconds(0));
     // A stream paced at a sensor's rate says so: the session then trains what keeps up with it
-    // (docs/service.md, "Sharing the cores"); an upload does not, and trains by its queue.
+    // (docs/service.md, "Sharing the cores"); an upload or a replay does not, and trains every
+    // frame fully, held back by its queue (docs/service.md, "Replays keep the offline map").
     if (options.real_time.value_or(options.rate_hz > 0)) context.AddMetadata(kRealTimeHeader, "1");
     auto stream = c.stub().StreamScans(&context);
     std::thread reader([&] {
