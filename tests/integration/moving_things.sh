@@ -6,7 +6,8 @@
 #   - strict accuracy (every predicted point counts) against accuracy (drops beyond 20 cm);
 #   - a planner's distances on the crossers' lines across the road, 0.6-1.4 m up, read after the
 #     robot drove through them: the static scene's distance within 5 cm, none 10 cm too near.
-# Usage: moving_things.sh BUILD_DIR [WORK_DIR]   (RIM_MOVING_FRAMES, RIM_MOVING_PRESET, RIM_MOVING_ARGS)
+# Usage: moving_things.sh BUILD_DIR [WORK_DIR]
+#   (RIM_MOVING_FRAMES, RIM_MOVING_PRESET, RIM_MOVING_ARGS, RIM_MOVING_SEED, RIM_MOVING_SIM_ARGS)
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 if [ -n "${2:-}" ]; then
@@ -16,6 +17,7 @@ else
   [ -n "${RIM_KEEP_TEST_DIRS:-}" ] || trap 'rm -rf "$WORK"' EXIT
 fi
 FRAMES="${RIM_MOVING_FRAMES:-100}"
+SEED="${RIM_MOVING_SEED:-72}"  # the test's city; held-out seeds for reports (BENCHMARK.md)
 PRESET="${RIM_MOVING_PRESET:-maicity}"
 # Extra rim_map arguments, e.g. RIM_MOVING_ARGS="--set transient.enabled=false" to see it fail.
 read -r -a EXTRA <<< "${RIM_MOVING_ARGS:-}"
@@ -24,7 +26,7 @@ read -r -a EXTRA <<< "${RIM_MOVING_ARGS:-}"
 # parked cars are seen through only over the cars (BENCHMARK.md, "Moving things").
 read -r -a SIM_FEATURES <<< "${RIM_MOVING_SIM_ARGS:---parked-cars 0 --balconies 0 --annexes 0 --yawed 0.25 --canopies 0}"
 
-"$BUILD/clients/rim_sim" --scene city --out "$WORK/city" --frames "$FRAMES" --seed 72 \
+"$BUILD/clients/rim_sim" --scene city --out "$WORK/city" --frames "$FRAMES" --seed "$SEED" \
   --crossers 6 --movers 3 --noise 0.03 "${SIM_FEATURES[@]}" > /dev/null
 
 # Points on the crossing lines the robot drove through at least 30 frames before the end, where
