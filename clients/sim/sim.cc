@@ -16,6 +16,7 @@
 #include "absl/strings/string_view.h"
 #include "rim/base/binary_io.h"
 #include "rim/base/status_macros.h"
+#include "rim/io/json.h"
 #include "rim/io/mesh_io.h"
 #include "sim/city.h"
 #include "sim/rng.h"
@@ -183,51 +184,58 @@ bool InObservedBox(const Vec3& p, const Vec3& sensor, const ObservedBox& box) {
          p.z() >= sensor.z() + box.z_min && p.z() < sensor.z() + box.z_max;
 }
 
-// scene.json's crossers and movers (each of them listed), or nothing when there are none, so that
+using Json = nlohmann::ordered_json;
+
+// scene.json's crossers and movers (each of them listed), added only when there are some, so that
 // a run without them writes what it always did.
-std::string MovingJson(const City& city) {
-  if (city.crossers.empty() && city.movers.empty()) return "";
-  std::string crossers;
+void AddMovingJson(const City& city, Json* scene) {
+  if (city.crossers.empty() && city.movers.empty()) return;
+  Json crossers = Json::array();
   for (const Crosser& c : city.crossers) {
-    absl::StrAppend(&crossers, crossers.empty() ? "\n" : ",\n",
-                    absl::StrFormat(R"(      {"x_m": %.4f, "y_m": %.4f, "street_dir": [%g, %g], )"
-                                    R"("speed_mps": %.4f, "radius_m": %.4f, "height_m": %.4f, )"
-                                    R"("phase": %.4f})",
-                                    c.center.x(), c.center.y(), c.street.x(), c.street.y(), c.speed,
-                                    c.radius, c.height, c.phase));
+    crossers.push_back({{"x_m", rim::io::JsonNumber(c.center.x(), 4)},
+                        {"y_m", rim::io::JsonNumber(c.center.y(), 4)},
+                        {"street_dir", Json::array({c.street.x(), c.street.y()})},
+                        {"speed_mps", rim::io::JsonNumber(c.speed, 4)},
+                        {"radius_m", rim::io::JsonNumber(c.radius, 4)},
+                        {"height_m", rim::io::JsonNumber(c.height, 4)},
+                        {"phase", rim::io::JsonNumber(c.phase, 4)}});
   }
-  std::string movers;
+  Json movers = Json::array();
   for (const Mover& m : city.movers) {
-    absl::StrAppend(&movers, movers.empty() ? "\n" : ",\n",
-                    absl::StrFormat(R"(      {"speed_mps": %.4f, "s0_m": %.4f, )"
-                                    R"("size_m": [%.6g, %.6g, %.6g]})",
-                                    m.speed, m.s0, m.size.x(), m.size.y(), m.size.z()));
+    movers.push_back({{"speed_mps", rim::io::JsonNumber(m.speed, 4)},
+                      {"s0_m", rim::io::JsonNumber(m.s0, 4)},
+                      {"size_m", Json::array({m.size.x(), m.size.y(), m.size.z()})}});
   }
-  // One object of scene.json: its count, the lines that describe it, and its list.
-  auto block = [](const char* name, size_t count, const std::string& about,
-                  const std::string& list) {
-    return absl::StrFormat("  \"%s\": {\n    \"count\": %d,\n%s    \"list\": [%s%s]\n  },\n", name,
-                           count, about, list, list.empty() ? "" : "\n    ");
-  };
-  const std::string crosser_about = absl::StrFormat(
-      "    \"in\": \"the scans only, not gt.ply or gt_observed.ply\",\n"
-      "    \"motion\": \"back and forth (turning at each end) across the street, on the line "
-      "through (x_m, y_m) perpendicular to street_dir, lateral -%g..+%g m from the centre line, "
-      "positive towards the drive's lane (right of street_dir); phase: the fraction of the cycle "
-      "at t = 0, 0 at -%g m walking to +%g m\",\n"
-      "    \"shape\": \"upright cylinder standing on the ground\",\n",
+  const char* in = "the scans only, not gt.ply or gt_observed.ply";
+  Json& crosser_json = (*scene)["crossers"];
+  crosser_json["count"] = city.crossers.size();
+  crosser_json["in"] = in;
+  crosser_json["motion"] = absl::StrFormat(
+      "back and forth (turning at each end) across the street, on the line through (x_m, y_m) "
+      "perpendicular to street_dir, lateral -%g..+%g m from the centre line, positive towards the "
+      "drive's lane (right of street_dir); phase: the fraction of the cycle at t = 0, 0 at -%g m "
+      "walking to +%g m",
       kCrossHalfSpan, kCrossHalfSpan, kCrossHalfSpan, kCrossHalfSpan);
+  crosser_json["shape"] = "upright cylinder standing on the ground";
+  crosser_json["list"] = std::move(crossers);
   const double loop_length = city.movers.empty() ? 0.0 : city.movers[0].path.length();
-  const std::string mover_about = absl::StrFormat(
-      "    \"in\": \"the scans only, not gt.ply or gt_observed.ply\",\n"
-      "    \"motion\": \"clockwise, against the drive: the centre is at arc length s0_m - "
-      "speed_mps * t of the counter-clockwise loop %g m inside the street centre lines (length "
-      "%.4f m; arc length 0 where its bottom straight starts, heading +x)\",\n"
-      "    \"shape\": \"box (length, width, height) standing on the ground, length along the "
-      "heading\",\n",
+  Json& mover_json = (*scene)["movers"];
+  mover_json["count"] = city.movers.size();
+  mover_json["in"] = in;
+  mover_json["motion"] = absl::StrFormat(
+      "clockwise, against the drive: the centre is at arc length s0_m - speed_mps * t of the "
+      "counter-clockwise loop %g m inside the street centre lines (length %.4f m; arc length 0 "
+      "where its bottom straight starts, heading +x)",
       kMoverOffset, loop_length);
-  return block("crossers", city.crossers.size(), crosser_about, crossers) +
-         block("movers", city.movers.size(), mover_about, movers);
+  mover_json["shape"] =
+      "box (length, width, height) standing on the ground, length along the heading";
+  mover_json["list"] = std::move(movers);
+}
+
+// scene.json as rim_sim writes it: objects one member a line down to the crossers' and movers'
+// lists, whose entries take a line each.
+absl::Status WriteSceneJson(const std::string& dir, const Json& scene) {
+  return WriteTextFile(Join(dir, "scene.json"), rim::io::DumpJson(scene, /*inline_depth=*/3));
 }
 
 // README.txt's paragraph on the crossers and movers, or nothing when there are none.
@@ -325,87 +333,74 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
 
   // The box as scene.json and README.txt (in its indented column) describe it.
   const ObservedBox& box = o.observed_box;
-  std::string box_json = "null";
+  Json box_json = nullptr;
   std::string box_text = absl::StrFormat(R"(, in every frame and
                        wherever it lies (no mapping box: --observed-box none); all frames
                        merged and averaged per %.6g m world-aligned voxel.)",
                                          kObservedVoxel);
   if (box.enabled) {
-    box_json = absl::StrFormat(R"({"hx_m": %.6g, "hy_m": %.6g, "z_min_m": %.6g, "z_max_m": %.6g,
-            "about": "each frame's sensor position, world axes"})",
-                               box.hx, box.hy, box.z_min, box.z_max);
+    box_json = {{"hx_m", box.hx},
+                {"hy_m", box.hy},
+                {"z_min_m", box.z_min},
+                {"z_max_m", box.z_max},
+                {"about", "each frame's sensor position, world axes"}};
     box_text = absl::StrFormat(R"( that lies in its
                        frame's local mapping box, |x - sx| < %.6g, |y - sy| < %.6g,
                        sz %+.6g <= z < sz %+.6g m about the sensor position (sx, sy, sz), world
                        axes; all frames merged and averaged per %.6g m world-aligned voxel.)",
                                box.hx, box.hy, box.z_min, box.z_max, kObservedVoxel);
   }
-  const std::string json = absl::StrFormat(
-      R"({
-  "generator": "rim_sim",
-  "scene": "city",
-  "layout": "kitti",
-  "seed": %d,
-  "frames": %d,
-  "step_m": %.6g,
-  "frame_rate_hz": %.6g,
-  "noise_stddev_m": %.6g,
-  "walkers": %d,
-%s  "buildings": {
-    "setback_min_m": %.6g,
-    "setback_max_m": %.6g,
-    "height_min_m": %.6g,
-    "height_max_m": %.6g,
-    "setback_from": "the street frontage, %.6g m from the street centre line"
-  },
-  "features": {
-    "parked_cars": %.6g,
-    "balconies": %.6g,
-    "annexes": %.6g,
-    "yawed": %.6g,
-    "canopies": %.6g,
-    "about": "shares in [0, 1]: of each kerb in rows of kerb-side parked cars; of buildings with balconies, with an annex, yawed up to 35 deg off the street; of trees with a broad, low crown"
-  },
-  "lidar": {
-    "beams": %d,
-    "columns": %d,
-    "elevation_max_deg": %.6g,
-    "elevation_min_deg": %.6g,
-    "min_range_m": %.6g,
-    "max_range_m": %.6g,
-    "sensor_height_m": %.6g,
-    "frame": "x forward, y left, z up"
-  },
-  "poses": "world_from_lidar, world = gt.ply frame; calib Tr is identity",
-  "gt_mesh": {
-    "file": "gt.ply",
-    "region_min_xy": [%.3f, %.3f],
-    "region_max_xy": [%.3f, %.3f],
-    "tolerance_m": %.6g,
-    "vertices": %d,
-    "faces": %d,
-    "includes_walkers": false
-  },
-  "gt_observed": {
-    "file": "gt_observed.ply",
-    "kind": "points",
-    "points": %d,
-    "voxel_m": %.6g,
-    "box": %s,
-    "noise_free": true,
-    "includes_walkers": false
-  }
-}
-)",
-      o.seed, o.frames, step, kFrameRateHz, o.noise, o.walkers, MovingJson(city),
-      o.buildings.setback_min, o.buildings.setback_max, o.buildings.height_min,
-      o.buildings.height_max, kFrontage, o.features.parked_cars, o.features.balconies,
-      o.features.annexes, o.features.yawed, o.features.canopies, lidar.beams, lidar.columns,
-      lidar.elev_max_deg, lidar.elev_min_deg, lidar.min_range, lidar.max_range, kSensorHeight,
-      gt_options.region_min.x(), gt_options.region_min.y(), gt_options.region_max.x(),
-      gt_options.region_max.y(), kCityMeshTolerance, gt.vertices.size(), gt.faces.size(),
-      observed_points.size(), kObservedVoxel, box_json);
-  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
+  Json scene = {{"generator", "rim_sim"},
+                {"scene", "city"},
+                {"layout", "kitti"},
+                {"seed", o.seed},
+                {"frames", o.frames},
+                {"step_m", step},
+                {"frame_rate_hz", kFrameRateHz},
+                {"noise_stddev_m", o.noise},
+                {"walkers", o.walkers}};
+  AddMovingJson(city, &scene);
+  scene["buildings"] = {
+      {"setback_min_m", o.buildings.setback_min},
+      {"setback_max_m", o.buildings.setback_max},
+      {"height_min_m", o.buildings.height_min},
+      {"height_max_m", o.buildings.height_max},
+      {"setback_from",
+       absl::StrFormat("the street frontage, %.6g m from the street centre line", kFrontage)}};
+  scene["features"] = {
+      {"parked_cars", o.features.parked_cars},
+      {"balconies", o.features.balconies},
+      {"annexes", o.features.annexes},
+      {"yawed", o.features.yawed},
+      {"canopies", o.features.canopies},
+      {"about",
+       "shares in [0, 1]: of each kerb in rows of kerb-side parked cars; of buildings with "
+       "balconies, with an annex, yawed up to 35 deg off the street; of trees with a broad, low "
+       "crown"}};
+  scene["lidar"] = {{"beams", lidar.beams},
+                    {"columns", lidar.columns},
+                    {"elevation_max_deg", lidar.elev_max_deg},
+                    {"elevation_min_deg", lidar.elev_min_deg},
+                    {"min_range_m", lidar.min_range},
+                    {"max_range_m", lidar.max_range},
+                    {"sensor_height_m", kSensorHeight},
+                    {"frame", "x forward, y left, z up"}};
+  scene["poses"] = "world_from_lidar, world = gt.ply frame; calib Tr is identity";
+  scene["gt_mesh"] = {
+      {"file", "gt.ply"},
+      {"region_min_xy", Json::array({rim::io::JsonNumber(gt_options.region_min.x(), 3),
+                                     rim::io::JsonNumber(gt_options.region_min.y(), 3)})},
+      {"region_max_xy", Json::array({rim::io::JsonNumber(gt_options.region_max.x(), 3),
+                                     rim::io::JsonNumber(gt_options.region_max.y(), 3)})},
+      {"tolerance_m", kCityMeshTolerance},
+      {"vertices", gt.vertices.size()},
+      {"faces", gt.faces.size()},
+      {"includes_walkers", false}};
+  scene["gt_observed"] = {
+      {"file", "gt_observed.ply"}, {"kind", "points"}, {"points", observed_points.size()},
+      {"voxel_m", kObservedVoxel}, {"box", box_json},  {"noise_free", true},
+      {"includes_walkers", false}};
+  RIM_RETURN_IF_ERROR(WriteSceneJson(o.out_dir, scene));
 
   const std::string readme = absl::StrFormat(
       R"(Synthetic LiDAR sequence written by rim_sim (scene "city", seed %d).
@@ -488,51 +483,36 @@ absl::StatusOr<SimSummary> RunRoom(const SimOptions& o) {
   summary.observed_points = observed_points.size();
   RIM_RETURN_IF_ERROR(WritePointCloudPly(Join(o.out_dir, "gt_observed.ply"), observed_points));
 
-  const std::string json = absl::StrFormat(
-      R"({
-  "generator": "rim_sim",
-  "scene": "room",
-  "layout": "7scenes",
-  "seed": %d,
-  "frames": %d,
-  "step_m": %.6g,
-  "frame_rate_hz": %.6g,
-  "noise_stddev_m": %.6g,
-  "room_size_m": [%.4f, %.4f, %.4f],
-  "camera": {
-    "width": %d,
-    "height": %d,
-    "fx": %.6g,
-    "fy": %.6g,
-    "cx": %.6g,
-    "cy": %.6g,
-    "min_depth_m": %.6g,
-    "max_depth_m": %.6g,
-    "depth": "uint16 millimetres along the optical axis, 0 = no return",
-    "frame": "x right, y down, z forward"
-  },
-  "poses": "camera_to_world, world = gt.ply frame",
-  "gt_mesh": {
-    "file": "gt.ply",
-    "tolerance_m": %.6g,
-    "vertices": %d,
-    "faces": %d
-  },
-  "gt_observed": {
-    "file": "gt_observed.ply",
-    "kind": "points",
-    "points": %d,
-    "voxel_m": %.6g,
-    "box": null,
-    "noise_free": true
-  }
-}
-)",
-      o.seed, o.frames, step, kRoomFrameRateHz, o.noise, room.size.x(), room.size.y(),
-      room.size.z(), camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
-      camera.min_depth, camera.max_depth, kRoomMeshTolerance, gt.vertices.size(), gt.faces.size(),
-      observed_points.size(), kObservedVoxel);
-  RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "scene.json"), json));
+  Json scene = {{"generator", "rim_sim"},
+                {"scene", "room"},
+                {"layout", "7scenes"},
+                {"seed", o.seed},
+                {"frames", o.frames},
+                {"step_m", step},
+                {"frame_rate_hz", kRoomFrameRateHz},
+                {"noise_stddev_m", o.noise},
+                {"room_size_m", Json::array({rim::io::JsonNumber(room.size.x(), 4),
+                                             rim::io::JsonNumber(room.size.y(), 4),
+                                             rim::io::JsonNumber(room.size.z(), 4)})}};
+  scene["camera"] = {{"width", camera.width},
+                     {"height", camera.height},
+                     {"fx", camera.fx},
+                     {"fy", camera.fy},
+                     {"cx", camera.cx},
+                     {"cy", camera.cy},
+                     {"min_depth_m", camera.min_depth},
+                     {"max_depth_m", camera.max_depth},
+                     {"depth", "uint16 millimetres along the optical axis, 0 = no return"},
+                     {"frame", "x right, y down, z forward"}};
+  scene["poses"] = "camera_to_world, world = gt.ply frame";
+  scene["gt_mesh"] = {{"file", "gt.ply"},
+                      {"tolerance_m", kRoomMeshTolerance},
+                      {"vertices", gt.vertices.size()},
+                      {"faces", gt.faces.size()}};
+  scene["gt_observed"] = {
+      {"file", "gt_observed.ply"}, {"kind", "points"}, {"points", observed_points.size()},
+      {"voxel_m", kObservedVoxel}, {"box", nullptr},   {"noise_free", true}};
+  RIM_RETURN_IF_ERROR(WriteSceneJson(o.out_dir, scene));
 
   const std::string readme = absl::StrFormat(
       R"(Synthetic depth sequence written by rim_sim (scene "room", seed %d).

@@ -17,6 +17,7 @@
 #include <iterator>
 #include <limits>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <unordered_map>
@@ -47,6 +48,18 @@ std::string TempDir(const std::string& name) {
 std::string ReadFile(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// dir/scene.json, parsed (keys in the order written); the test fails on a parse error.
+nlohmann::ordered_json ReadScene(const std::string& dir) {
+  return nlohmann::ordered_json::parse(ReadFile(dir + "/scene.json"));
+}
+
+// The keys of a scene.json object, in the order written.
+std::vector<std::string> Keys(const nlohmann::ordered_json& object) {
+  std::vector<std::string> keys;
+  for (auto it = object.begin(); it != object.end(); ++it) keys.push_back(it.key());
+  return keys;
 }
 
 // Every regular file under dir, as relative path -> bytes.
@@ -808,9 +821,9 @@ TEST(SimCityTest, ObservedGroundTruthIsTheNoiseFreeStaticSurfaceInsideTheFrameBo
   EXPECT_TRUE(ReadFile(o.out_dir + "/gt_observed.ply") ==
               ReadFile(clean.out_dir + "/gt_observed.ply"));
   // scene.json reports it.
-  const std::string json = ReadFile(o.out_dir + "/scene.json");
-  EXPECT_NE(json.find(absl::StrCat("\"points\": ", points.size())), std::string::npos) << json;
-  EXPECT_NE(json.find("\"kind\": \"points\""), std::string::npos) << json;
+  nlohmann::ordered_json scene = ReadScene(o.out_dir);
+  EXPECT_EQ(scene["gt_observed"]["points"], points.size()) << scene.dump();
+  EXPECT_EQ(scene["gt_observed"]["kind"], "points") << scene.dump();
 }
 
 TEST(SimCityTest, ObservedBoxOptionShrinksTheObservedSurface) {
@@ -839,8 +852,7 @@ TEST(SimCityTest, ObservedBoxOptionShrinksTheObservedSurface) {
   all.observed_box.enabled = false;
   ASSERT_TRUE(RunSim(all).ok());
   EXPECT_GT(ReadObserved(all.out_dir).size(), 1.3 * wide_points);
-  const std::string json = ReadFile(all.out_dir + "/scene.json");
-  EXPECT_NE(json.find("\"box\": null"), std::string::npos) << json;
+  EXPECT_TRUE(ReadScene(all.out_dir)["gt_observed"]["box"].is_null());
   const std::string readme = ReadFile(all.out_dir + "/README.txt");
   EXPECT_NE(readme.find("no mapping box"), std::string::npos) << readme;
 }
@@ -930,7 +942,7 @@ TEST(SimCityTest, PosesCalibAndTimesParseBack) {
   while (times >> x) t.push_back(x);
   ASSERT_EQ(t.size(), 5u);
   EXPECT_DOUBLE_EQ(t[4], 0.4);
-  EXPECT_NE(ReadFile(o.out_dir + "/scene.json").find("\"frames\": 5"), std::string::npos);
+  EXPECT_EQ(ReadScene(o.out_dir)["frames"], 5);
 }
 
 TEST(SimRoomTest, DepthPixelsBackProjectOntoTheGroundTruth) {
@@ -948,6 +960,15 @@ TEST(SimRoomTest, DepthPixelsBackProjectOntoTheGroundTruth) {
   for (int i = 0; i < 9; ++i) ASSERT_TRUE(static_cast<bool>(kin >> K(i / 3, i % 3)));
   EXPECT_EQ(K(0, 0), 300.0);
   EXPECT_EQ(K(2, 2), 1.0);
+  // scene.json records the camera the images were taken with.
+  nlohmann::ordered_json scene = ReadScene(o.out_dir);
+  EXPECT_EQ(scene["layout"], "7scenes");
+  EXPECT_EQ(scene["frames"], 3);
+  EXPECT_EQ(scene["camera"]["width"], 320);
+  EXPECT_EQ(scene["camera"]["fx"], K(0, 0));
+  EXPECT_EQ(scene["camera"]["cx"], K(0, 2));
+  EXPECT_EQ(scene["room_size_m"].size(), 3u);
+  EXPECT_TRUE(scene["gt_observed"]["box"].is_null());
   for (int k = 0; k < o.frames; ++k) {
     const std::string stem = o.out_dir + absl::StrFormat("/frame-%06d", k);
     const auto png = ReadPng16(stem + ".depth.png");
@@ -1723,27 +1744,44 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   EXPECT_EQ(on_moving, 0);
 
   // scene.json and README.txt describe them.
-  const std::string json = ReadFile(with.out_dir + "/scene.json");
-  EXPECT_NE(json.find("\"crossers\": {\n    \"count\": 4,"), std::string::npos) << json;
-  EXPECT_NE(json.find("\"movers\": {\n    \"count\": 3,"), std::string::npos) << json;
+  nlohmann::ordered_json scene = ReadScene(with.out_dir);
+  // They come after the walkers and before the buildings.
+  EXPECT_EQ(Keys(scene), (std::vector<std::string>{
+                             "generator", "scene", "layout", "seed", "frames", "step_m",
+                             "frame_rate_hz", "noise_stddev_m", "walkers", "crossers", "movers",
+                             "buildings", "features", "lidar", "poses", "gt_mesh", "gt_observed"}));
+  nlohmann::ordered_json& crosser_json = scene["crossers"];
+  EXPECT_EQ(Keys(crosser_json),
+            (std::vector<std::string>{"count", "in", "motion", "shape", "list"}));
+  EXPECT_EQ(crosser_json["count"], 4);
+  ASSERT_EQ(crosser_json["list"].size(), 4u);
+  nlohmann::ordered_json& mover_json = scene["movers"];
+  EXPECT_EQ(Keys(mover_json), (std::vector<std::string>{"count", "in", "motion", "shape", "list"}));
+  EXPECT_EQ(mover_json["count"], 3);
+  ASSERT_EQ(mover_json["list"].size(), 3u);
+  // Written to 4 decimals (the street direction exactly).
   const Crosser& c0 = city.crossers[0];
-  EXPECT_NE(json.find(absl::StrFormat(R"({"x_m": %.4f, "y_m": %.4f, "street_dir": [%g, %g], )"
-                                      R"("speed_mps": %.4f, "radius_m": %.4f, "height_m": %.4f, )"
-                                      R"("phase": %.4f})",
-                                      c0.center.x(), c0.center.y(), c0.street.x(), c0.street.y(),
-                                      c0.speed, c0.radius, c0.height, c0.phase)),
-            std::string::npos)
-      << json;
-  EXPECT_NE(json.find(absl::StrFormat(R"({"speed_mps": %.4f, "s0_m": %.4f, )"
-                                      R"("size_m": [4.4, 1.8, 1.5]})",
-                                      city.movers[2].speed, city.movers[2].s0)),
-            std::string::npos)
-      << json;
+  nlohmann::ordered_json& j0 = crosser_json["list"][0];
+  EXPECT_EQ(Keys(j0), (std::vector<std::string>{"x_m", "y_m", "street_dir", "speed_mps", "radius_m",
+                                                "height_m", "phase"}));
+  EXPECT_NEAR(j0["x_m"].get<double>(), c0.center.x(), 5e-5);
+  EXPECT_NEAR(j0["y_m"].get<double>(), c0.center.y(), 5e-5);
+  EXPECT_EQ(j0["street_dir"], nlohmann::ordered_json::array({c0.street.x(), c0.street.y()}));
+  EXPECT_NEAR(j0["speed_mps"].get<double>(), c0.speed, 5e-5);
+  EXPECT_NEAR(j0["radius_m"].get<double>(), c0.radius, 5e-5);
+  EXPECT_NEAR(j0["height_m"].get<double>(), c0.height, 5e-5);
+  EXPECT_NEAR(j0["phase"].get<double>(), c0.phase, 5e-5);
+  nlohmann::ordered_json& j2 = mover_json["list"][2];
+  EXPECT_EQ(Keys(j2), (std::vector<std::string>{"speed_mps", "s0_m", "size_m"}));
+  EXPECT_NEAR(j2["speed_mps"].get<double>(), city.movers[2].speed, 5e-5);
+  EXPECT_NEAR(j2["s0_m"].get<double>(), city.movers[2].s0, 5e-5);
+  EXPECT_EQ(j2["size_m"], nlohmann::ordered_json::array({4.4, 1.8, 1.5}));
   const std::string readme = ReadFile(with.out_dir + "/README.txt");
   EXPECT_NE(readme.find("Crossers: 4 pedestrians"), std::string::npos) << readme;
   EXPECT_NE(readme.find("Movers: 3 cars"), std::string::npos) << readme;
   // Without them, neither is mentioned (the files are those of a run without the options).
-  EXPECT_EQ(ReadFile(without.out_dir + "/scene.json").find("crossers"), std::string::npos);
+  EXPECT_FALSE(ReadScene(without.out_dir).contains("crossers"));
+  EXPECT_FALSE(ReadScene(without.out_dir).contains("movers"));
   EXPECT_EQ(ReadFile(without.out_dir + "/README.txt").find("Crossers"), std::string::npos);
 }
 
@@ -1894,26 +1932,33 @@ TEST(SimCliTest, HelpAndSuccess) {
   EXPECT_EQ(ok.code, 0) << ok.err;
   EXPECT_NE(ok.out.find("wrote 1 LiDAR frames"), std::string::npos) << ok.out;
   EXPECT_TRUE(std::filesystem::exists(ScanPath(dir, 0)));
-  EXPECT_NE(ReadFile(dir + "/scene.json").find("\"seed\": 4"), std::string::npos);
+  EXPECT_EQ(ReadScene(dir)["seed"], 4);
   EXPECT_NE(ok.out.find("gt_observed.ply ("), std::string::npos) << ok.out;
 
   const CliResult boxed = Cli({"--out", dir, "--frames", "1", "--columns", "90", "--gt-margin", "5",
                                "--observed-box", "4,5.5,-1.5,0.5"});
   EXPECT_EQ(boxed.code, 0) << boxed.err;
-  EXPECT_NE(ReadFile(dir + "/scene.json").find("\"hx_m\": 4, \"hy_m\": 5.5, \"z_min_m\": -1.5"),
-            std::string::npos)
-      << ReadFile(dir + "/scene.json");
+  nlohmann::ordered_json box = ReadScene(dir)["gt_observed"]["box"];
+  EXPECT_EQ(Keys(box), (std::vector<std::string>{"hx_m", "hy_m", "z_min_m", "z_max_m", "about"}));
+  EXPECT_EQ(box["hx_m"], 4.0);
+  EXPECT_EQ(box["hy_m"], 5.5);
+  EXPECT_EQ(box["z_min_m"], -1.5);
+  EXPECT_EQ(box["z_max_m"], 0.5);
 
   const CliResult city =
       Cli({"--out", dir, "--frames", "1", "--columns", "90", "--gt-margin", "5",
            "--building-setback", "1,2.5", "--building-height=6,7.5", "--observed-box", "none"});
   EXPECT_EQ(city.code, 0) << city.err;
-  const std::string json = ReadFile(dir + "/scene.json");
-  EXPECT_NE(json.find("\"setback_min_m\": 1,\n    \"setback_max_m\": 2.5,\n"
-                      "    \"height_min_m\": 6,\n    \"height_max_m\": 7.5,"),
-            std::string::npos)
-      << json;
-  EXPECT_NE(json.find("\"box\": null"), std::string::npos) << json;
+  nlohmann::ordered_json scene = ReadScene(dir);
+  nlohmann::ordered_json& buildings = scene["buildings"];
+  EXPECT_EQ(Keys(buildings),
+            (std::vector<std::string>{"setback_min_m", "setback_max_m", "height_min_m",
+                                      "height_max_m", "setback_from"}));
+  EXPECT_EQ(buildings["setback_min_m"], 1.0);
+  EXPECT_EQ(buildings["setback_max_m"], 2.5);
+  EXPECT_EQ(buildings["height_min_m"], 6.0);
+  EXPECT_EQ(buildings["height_max_m"], 7.5);
+  EXPECT_TRUE(scene["gt_observed"]["box"].is_null());
   const std::string readme = ReadFile(dir + "/README.txt");
   EXPECT_NE(readme.find("Buildings: 6..7.5 m high, facades set back 1..2.5 m beyond 9.5 m"),
             std::string::npos)
@@ -1923,10 +1968,9 @@ TEST(SimCliTest, HelpAndSuccess) {
   const CliResult moving = Cli({"--out", dir, "--frames", "2", "--columns", "90", "--gt-margin",
                                 "5", "--crossers", "2", "--movers=1"});
   EXPECT_EQ(moving.code, 0) << moving.err;
-  const std::string moving_json = ReadFile(dir + "/scene.json");
-  EXPECT_NE(moving_json.find("\"crossers\": {\n    \"count\": 2,"), std::string::npos)
-      << moving_json;
-  EXPECT_NE(moving_json.find("\"movers\": {\n    \"count\": 1,"), std::string::npos) << moving_json;
+  nlohmann::ordered_json moving_scene = ReadScene(dir);
+  EXPECT_EQ(moving_scene["crossers"]["count"], 2);
+  EXPECT_EQ(moving_scene["movers"]["count"], 1);
 
   // An output path under a regular file cannot be created: a runtime error, exit 1.
   const CliResult bad = Cli({"--out", dir + "/gt.ply/sub", "--frames", "1", "--columns", "90"});
