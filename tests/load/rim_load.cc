@@ -31,13 +31,22 @@
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
 //                 [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]
-//                 [--baseline S] [--set key=value ...]
+//                 [--baseline S] [--set key=value ...] [--json FILE]
 //
 // --baseline S first runs the robots alone (no planners, no dashboards) for S seconds on sessions
 // of their own ("baseline_robot_N", summary lines under "rim_load baseline: ..."), then the load
 // as above, and ends with what the load left each robot of its training, measured on this host
 // in this run:
 //   "  ROBOT: rays trained per frame period alone N, under load N (N %)"
+//
+// --json FILE also writes the numbers of the summary to FILE (written by rim::io::DumpJson, each
+// rounded as printed): {"options": {...}, "load": PHASE, "baseline": PHASE (with --baseline),
+// "alone_vs_load": [{"robot", "alone", "under_load", "percent"}] (with --baseline), "ok"}, where
+// PHASE is {"robots": [{"name", "sent", "accepted", "integrated", "frames_per_s", "rejected",
+// "lowest_iterations_per_frame", "median_iterations_per_frame", "largest_lag_frames",
+// "median_rays_per_frame", "median_rays_trained_per_frame_period"}], "queries": {"batches",
+// "points", "latency_p50_ms", "latency_p99_ms", "within_bound_percent"}, "tiles": {"watched", "mb",
+// "latency_p95_ms"}, "host_memory_mb"}. The printed text is the same with or without it.
 //
 // --set overrides a config value of the robots' maicity sessions (as `rimctl session create
 // --set`), to compare settings under the same load; repeatable.
@@ -53,6 +62,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <mutex>
 #include <random>
 #include <string>
@@ -61,6 +71,7 @@
 
 #include "client/client.h"
 #include "client/wire.h"
+#include "rim/io/json.h"
 #include "sim/city_frames.h"
 
 namespace {
@@ -73,6 +84,7 @@ struct Options {
   double query_rate_hz = 0;  // batches per second per planner; 0: back to back
   double baseline_s = 0;     // the robots alone for this long first; 0: no baseline phase
   std::vector<std::pair<std::string, std::string>> overrides;  // --set key=value
+  std::string json_path;                                       // --json FILE; empty: none
 };
 
 bool Loopback(const std::string& address) {
@@ -103,6 +115,8 @@ bool Parse(int argc, char** argv, Options* o) {
       o->query_rate_hz = std::atof(v.c_str());
     else if (k == "--baseline")
       o->baseline_s = std::atof(v.c_str());
+    else if (k == "--json" && !v.empty())
+      o->json_path = v;
     else if (k == "--set" && v.find('=') != std::string::npos && v.find('=') > 0)
       o->overrides.emplace_back(v.substr(0, v.find('=')), v.substr(v.find('=') + 1));
     else
@@ -128,6 +142,7 @@ double Quantile(std::vector<double> v, double q) {
 struct Phase {
   bool ok = true;  // no rejected scan, no failed RPC, integrated == accepted
   std::vector<double> trained_per_period;  // per robot: median rays trained per frame period
+  nlohmann::ordered_json json;             // the summary's numbers, for --json
 };
 
 // Runs o.robots robots, o.planners planners and o.dashboards dashboards for o.duration_s on new
@@ -274,6 +289,8 @@ Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::Pos
 
   bool consistent = true;
   uint64_t memory = 0;
+  using rim::io::JsonNumber;
+  nlohmann::ordered_json robot_json = nlohmann::ordered_json::array();
   std::printf("rim_load%s: %d robots at %.1f Hz, %d planners (%d points), %d dashboards, %.0f s\n",
               title, o.robots, o.rate_hz, o.planners, o.batch, o.dashboards, o.duration_s);
   for (int r = 0; r < o.robots; ++r) {
@@ -297,6 +314,19 @@ Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::Pos
     std::printf("  %s: median rays trained per frame period %.0f (frame and between frames)\n",
                 robots[r].c_str(), Quantile(trained_per_period[r], 0.5));
     phase.trained_per_period[size_t(r)] = Quantile(trained_per_period[r], 0.5);
+    robot_json.push_back(
+        {{"name", robots[r]},
+         {"sent", s.sent},
+         {"accepted", s.accepted},
+         {"integrated", s.integrated},
+         {"frames_per_s", JsonNumber(s.seconds > 0 ? s.integrated / s.seconds : 0.0, 2)},
+         {"rejected", s.rejected},
+         {"lowest_iterations_per_frame", min_iterations[r] == (1u << 30) ? 0 : min_iterations[r]},
+         {"median_iterations_per_frame", JsonNumber(Quantile(iterations[r], 0.5), 0)},
+         {"largest_lag_frames", max_lag[r]},
+         {"median_rays_per_frame", JsonNumber(Quantile(rays_per_frame[r], 0.5), 0)},
+         {"median_rays_trained_per_frame_period",
+          JsonNumber(Quantile(trained_per_period[r], 0.5), 0)}});
   }
   std::printf(
       "  queries: %zu batches, %llu points, latency p50 %.1f ms, p99 %.1f ms, %.1f %% within the "
@@ -309,6 +339,22 @@ Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::Pos
               (unsigned long long)tiles.load(), tile_bytes.load() / 1e6,
               Quantile(tile_latency_ms, 0.95));
   std::printf("  sessions' host memory at the end: %.0f MB\n", memory / 1e6);
+  phase.json = {{"robots", std::move(robot_json)},
+                {"queries",
+                 {{"batches", query_ms.size()},
+                  {"points", query_points.load()},
+                  {"latency_p50_ms", JsonNumber(Quantile(query_ms, 0.5), 1)},
+                  {"latency_p99_ms", JsonNumber(Quantile(query_ms, 0.99), 1)},
+                  {"within_bound_percent",
+                   JsonNumber(query_points.load() > 0 ? 100.0 * double(query_within.load()) /
+                                                            double(query_points.load())
+                                                      : 0.0,
+                              1)}}},
+                {"tiles",
+                 {{"watched", tiles.load()},
+                  {"mb", JsonNumber(tile_bytes.load() / 1e6, 1)},
+                  {"latency_p95_ms", JsonNumber(Quantile(tile_latency_ms, 0.95), 0)}}},
+                {"host_memory_mb", JsonNumber(memory / 1e6, 0)}};
   for (const auto& r : robots) (void)client.CloseSession(r, false);
   phase.ok = !failed && consistent;
   return phase;
@@ -321,7 +367,7 @@ int main(int argc, char** argv) {
                  "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
                  "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
                  "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--baseline S<=3600] "
-                 "[--set key=value ...]\n");
+                 "[--set key=value ...] [--json FILE]\n");
     return 2;
   }
   if (!Loopback(o.server)) {
@@ -355,6 +401,7 @@ int main(int argc, char** argv) {
     alone = RunPhase(*client, robots_only, frames, "baseline_robot_", " baseline");
   }
   const Phase loaded = RunPhase(*client, o, frames, "load_robot_", "");
+  nlohmann::ordered_json alone_vs_load = nlohmann::ordered_json::array();
   if (o.baseline_s > 0) {
     for (int r = 0; r < o.robots; ++r) {
       const double a = alone.trained_per_period[size_t(r)];
@@ -362,6 +409,37 @@ int main(int argc, char** argv) {
       std::printf(
           "  load_robot_%d: rays trained per frame period alone %.0f, under load %.0f (%.0f %%)\n",
           r, a, l, a > 0 ? 100.0 * l / a : 0.0);
+      alone_vs_load.push_back({{"robot", "load_robot_" + std::to_string(r)},
+                               {"alone", rim::io::JsonNumber(a, 0)},
+                               {"under_load", rim::io::JsonNumber(l, 0)},
+                               {"percent", rim::io::JsonNumber(a > 0 ? 100.0 * l / a : 0.0, 0)}});
+    }
+  }
+  if (!o.json_path.empty()) {
+    nlohmann::ordered_json json = {{"options",
+                                    {{"robots", o.robots},
+                                     {"planners", o.planners},
+                                     {"dashboards", o.dashboards},
+                                     {"rate_hz", o.rate_hz},
+                                     {"duration_s", o.duration_s},
+                                     {"batch", o.batch},
+                                     {"frames", o.frames},
+                                     {"query_rate_hz", o.query_rate_hz},
+                                     {"baseline_s", o.baseline_s}}},
+                                   {"load", loaded.json}};
+    nlohmann::ordered_json set = nlohmann::ordered_json::object();
+    for (const auto& [key, value] : o.overrides) set[key] = value;
+    json["options"]["set"] = std::move(set);
+    if (o.baseline_s > 0) {
+      json["baseline"] = alone.json;
+      json["alone_vs_load"] = std::move(alone_vs_load);
+    }
+    json["ok"] = alone.ok && loaded.ok;
+    std::ofstream f(o.json_path);
+    f << rim::io::DumpJson(json, 3);
+    if (!f) {
+      std::fprintf(stderr, "rim_load: cannot write %s\n", o.json_path.c_str());
+      return 1;
     }
   }
   if (!alone.ok || !loaded.ok) {
