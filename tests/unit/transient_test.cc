@@ -334,20 +334,19 @@ TEST(TransientTest, AMapperForgetsAPersonWhoWalkedOff) {
   EXPECT_GT(with.min_sdf_on_person_face, 0.05f);
 }
 
-// A person beside the road stays until the robot's box has left them behind, then walks off: the
-// rays that later pass where they stood come from a box that no longer holds the place. Their
-// voxels in the global map read seen free, and the tile there meshes without them.
-int MeshVerticesWherePersonStoodAfterDriving(int departed_frames) {
+// A robot driving 1 m a frame along +x for 26 frames past a facade 8 m to its left, while a
+// person stands 3 m to its left at x = 2 from frame `first` to frame `last`; the box (±10 m)
+// holds x = 2 until about frame 12. The facade is long enough that every ray through where the
+// person stood ends on it (rays into the sky are no evidence). `setting`: one more override.
+std::unique_ptr<Mapper> DriveByAPerson(const std::string& setting, int first, int last,
+                                       uint64_t seed) {
   auto config = MakePreset("maicity");
-  EXPECT_TRUE(ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5",
-                              "transient.departed_frames=" + std::to_string(departed_frames)},
-                             &*config)
-                  .ok());
+  EXPECT_TRUE(
+      ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5", setting}, &*config)
+          .ok());
   auto mapper = Mapper::Create(*config);
   EXPECT_TRUE(mapper.ok());
   AnalyticScene scene = Ground();
-  // A facade behind the person, long enough that every ray through where they stood ends on it
-  // (rays into the sky are no evidence).
   scene.boxes.push_back({Eigen::Vector3f(-80.f, 8.f, -0.05f), Eigen::Vector3f(60.f, 9.f, 5.f)});
   AnalyticScene with_person = scene;
   with_person.boxes.push_back(
@@ -355,23 +354,32 @@ int MeshVerticesWherePersonStoodAfterDriving(int departed_frames) {
   testing_support::LidarModel lidar = CarLidar(0.01f);
   lidar.columns = 900;
   for (int f = 0; f < 26; ++f) {
-    // 1 m a frame along +x: the box (±10 m) leaves x = 2.5 behind at about frame 13; the person
-    // stays until frame 14.
     const Eigen::Isometry3f T = PoseAt(float(f), 0.f);
     PosedScan scan;
     scan.T_world_sensor = T.cast<double>();
-    scan.points_S = testing_support::SimulateScan(f <= 14 ? with_person : scene, lidar, T, 40 + f);
+    const bool there = f >= first && f <= last;
+    scan.points_S = testing_support::SimulateScan(there ? with_person : scene, lidar, T, seed + f);
     EXPECT_TRUE((*mapper)->IntegrateScan(scan).ok());
   }
+  return std::move(*mapper);
+}
+
+// A person beside the road stays until the robot's box has left them behind (until frame 14),
+// then walks off: the rays that later pass where they stood come from a box that no longer holds
+// the place. Their voxels in the global map read seen free, and the tile there meshes without
+// them.
+int MeshVerticesWherePersonStoodAfterDriving(int departed_frames) {
+  std::unique_ptr<Mapper> mapper =
+      DriveByAPerson("transient.departed_frames=" + std::to_string(departed_frames), 0, 14, 40);
   int in_person = 0;
-  for (const TileInfo& t : (*mapper)->ListTiles(0)) {
-    auto mesh = (*mapper)->ExtractMeshTile(t.key);
+  for (const TileInfo& t : mapper->ListTiles(0)) {
+    auto mesh = mapper->ExtractMeshTile(t.key);
     EXPECT_TRUE(mesh.ok());
     for (const auto& v : mesh->vertices)
       in_person +=
           v[0] > 1.9f && v[0] < 2.6f && v[1] > 2.9f && v[1] < 3.7f && v[2] > 0.3f && v[2] < 1.7f;
   }
-  EXPECT_EQ(departed_frames > 0, (*mapper)->Stats().transient_departed_removed > 0);
+  EXPECT_EQ(departed_frames > 0, mapper->Stats().transient_departed_removed > 0);
   return in_person;
 }
 
@@ -385,38 +393,16 @@ TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
 // not judged this time (the filter is off). A box's evidence of free space outweighs later returns
 // from afar: they are not in the planner's distances there.
 TEST(TransientTest, ReturnsFromAfarWhereABoxSawFreeSpaceAreNotDistances) {
-  auto config = MakePreset("maicity");
-  ASSERT_TRUE(ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5",
-                              "transient.enabled=false"},
-                             &*config)
-                  .ok());
-  auto mapper = Mapper::Create(*config);
-  ASSERT_TRUE(mapper.ok());
-  AnalyticScene scene = Ground();
-  scene.boxes.push_back({Eigen::Vector3f(-80.f, 8.f, -0.05f), Eigen::Vector3f(60.f, 9.f, 5.f)});
-  AnalyticScene with_person = scene;
-  with_person.boxes.push_back(
-      {Eigen::Vector3f(2.f, 3.f, -0.05f), Eigen::Vector3f(2.5f, 3.6f, 1.8f)});
-  testing_support::LidarModel lidar = CarLidar(0.01f);
-  lidar.columns = 900;
-  for (int f = 0; f < 26; ++f) {
-    // 1 m a frame along +x: the box (±10 m) holds x = 2 until about frame 12; the person stands
-    // there from frame 15 to 20, 13-18 m behind the sensor.
-    const Eigen::Isometry3f T = PoseAt(float(f), 0.f);
-    PosedScan scan;
-    scan.T_world_sensor = T.cast<double>();
-    const bool there = f >= 15 && f <= 20;
-    scan.points_S = testing_support::SimulateScan(there ? with_person : scene, lidar, T, 70 + f);
-    ASSERT_TRUE((*mapper)->IntegrateScan(scan).ok());
-  }
-  (*mapper)->RefreshDistanceField();
-  EXPECT_GT((*mapper)->Stats().deferred_points, 0);
+  // The person stands there from frame 15 to 20, 13-18 m behind the sensor.
+  std::unique_ptr<Mapper> mapper = DriveByAPerson("transient.enabled=false", 15, 20, 70);
+  mapper->RefreshDistanceField();
+  EXPECT_GT(mapper->Stats().deferred_points, 0);
   // In front of where the person stood: the ground is the nearest true surface.
   std::vector<float> xyz;
   for (float x : {2.1f, 2.25f, 2.4f})
     for (float z : {0.6f, 1.f, 1.4f}) xyz.insert(xyz.end(), {x, 2.75f, z});
   QueryResult q;
-  ASSERT_TRUE((*mapper)->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
+  ASSERT_TRUE(mapper->QuerySdf(xyz.data(), xyz.size() / 3, false, &q).ok());
   for (size_t i = 0; i < q.sdf.size(); ++i)
     EXPECT_GT(q.sdf[i], xyz[3 * i + 2] - 0.1f) << "at z " << xyz[3 * i + 2];
 }
