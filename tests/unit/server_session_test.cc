@@ -464,7 +464,17 @@ TEST(SessionTest, AReplayTrainsTheConfiguredIterationsWhateverItsQueue) {
     EXPECT_GT(pushed_back, 0) << "real_time " << real_time;
     EXPECT_FALSE((*session)->Stats().real_time);
     ASSERT_EQ(iterations.size(), 16u);
+    // A stream that says it is real time is found ahead only at its fourth scan (0.3 s of
+    // sensor time in a few ms; SensorClockTest): the trainer may take frames 0-2 before that,
+    // as a robot's, when the scans come faster than it wakes (a busy host). Frame 3 and later
+    // were taken after the fourth scan came.
+    const size_t judged_from = real_time ? 3 : 0;
     for (size_t k = 0; k < iterations.size(); ++k) {
+      if (k < judged_from) {
+        EXPECT_GE(iterations[k], 2) << "frame " << k;  // the floor
+        EXPECT_LE(iterations[k], 8) << "frame " << k;
+        continue;
+      }
       EXPECT_EQ(iterations[k], 8) << "real_time " << real_time << ", frame " << k;
       EXPECT_EQ(rays[k], 128) << "real_time " << real_time << ", frame " << k;
     }
