@@ -10,6 +10,8 @@ PACKAGES=(
   # core
   libtorch-dev libeigen3-dev libabsl-dev zlib1g-dev libpng-dev
   nlohmann-json3-dev liblzf-dev libnanoflann-dev
+  # every binary's command line (core/rim/base/flags.h): CLI11, header-only
+  libcli11-dev
   # service
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev libdraco-dev

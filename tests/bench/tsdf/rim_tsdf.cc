@@ -24,6 +24,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "rim/base/binary_io.h"
+#include "rim/base/flags.h"
 #include "rim/base/status_macros.h"
 #include "rim/io/dataset.h"
 #include "rim/io/mesh_io.h"
@@ -32,80 +33,69 @@
 namespace rim::bench {
 namespace {
 
-constexpr char kUsage[] =
+constexpr char kSynopsis[] =
     "usage: rim_tsdf DATASET --out DIR [--frames A:B] [--voxel M] [--trunc M] [--carve]\n"
-    "                [--min-weight W] [--max-range M] [--min-range M]\n"
-    "  --voxel M       voxel size in metres (default 0.1)\n"
-    "  --trunc M       truncation distance in metres, at least the voxel (default 0.3)\n"
-    "  --carve         space carving: rays clear the free space from the sensor on\n"
-    "  --min-weight W  mesh only cubes whose corners have this weight (default 1 with --carve,\n"
-    "                  5 without)\n"
-    "  --max-range M   skip returns farther than this (default 60)\n"
-    "  --min-range M   skip returns nearer than this (default 0.3)\n";
+    "                [--min-weight W] [--max-range M] [--min-range M]";
 
 struct Args {
   std::string dataset, out;
   long first = 0, last = -1;  // [first, last), last < 0: to the end
   TsdfOptions options;
-  bool min_weight_given = false;
 };
 
-absl::StatusOr<double> ParseNumber(const std::string& flag, const std::string& text) {
-  double v = 0;
-  if (!absl::SimpleAtod(text, &v) || !std::isfinite(v))
-    return absl::InvalidArgumentError(absl::StrCat(flag, " '", text, "' is not a finite number"));
-  return v;
+// The command line (rim/base/flags.h): APP's options fill ARGS.
+void AddFlags(CLI::App& app, Args& a) {
+  cli::SetHelp(app, kSynopsis, "", 18);
+  auto finite = [](const char* flag) {
+    return cli::Finite([flag](const std::string& text) {
+      return absl::StrCat(flag, " '", text, "' is not a finite number");
+    });
+  };
+  // Every flag keeps its last value when given twice, as rim_tsdf always did.
+  auto last = [](CLI::Option* o) {
+    return o->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  app.add_option("DATASET", a.dataset, "the dataset, any layout rim_map reads")->type_name("");
+  last(app.add_option("--out", a.out, "output folder: mesh.ply and timing.json")->type_name("DIR"));
+  last(app.add_option_function<std::string>(
+              "--frames",
+              [&a](const std::string& range) {
+                std::vector<std::string> parts = absl::StrSplit(range, ':');
+                if (parts.size() != 2 ||
+                    (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
+                    (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
+                  throw cli::UsageError(absl::StrCat("--frames '", range, "' is not A:B"));
+              },
+              "frames A to B (B excluded; either may be left out: all by default)")
+           ->type_name("A:B"));
+  last(app.add_option("--voxel", a.options.voxel_m, "voxel size in metres (default 0.1)")
+           ->type_name("M")
+           ->check(finite("--voxel")));
+  last(app.add_option("--trunc", a.options.truncation_m,
+                      "truncation distance in metres, at least the voxel (default 0.3)")
+           ->type_name("M")
+           ->check(finite("--trunc")));
+  app.add_flag("--carve", a.options.space_carving,
+               "space carving: rays clear the free space from the sensor on");
+  last(app.add_option("--min-weight", a.options.min_weight,
+                      "mesh only cubes whose corners have this weight (default 1 with --carve,\n"
+                      "5 without)")
+           ->type_name("W")
+           ->check(finite("--min-weight")));
+  last(app.add_option("--max-range", a.options.max_range_m,
+                      "skip returns farther than this (default 60)")
+           ->type_name("M")
+           ->check(finite("--max-range")));
+  last(app.add_option("--min-range", a.options.min_range_m,
+                      "skip returns nearer than this (default 0.3)")
+           ->type_name("M")
+           ->check(finite("--min-range")));
 }
 
-absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
-  Args a;
-  bool max_range_given = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto value = [&](const char* name) -> absl::StatusOr<std::string> {
-      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
-      return std::string(argv[++i]);
-    };
-    auto number = [&](const char* name) -> absl::StatusOr<double> {
-      RIM_ASSIGN_OR_RETURN(std::string text, value(name));
-      return ParseNumber(name, text);
-    };
-    if (arg == "--out") {
-      RIM_ASSIGN_OR_RETURN(a.out, value("--out"));
-    } else if (arg == "--frames") {
-      RIM_ASSIGN_OR_RETURN(std::string range, value("--frames"));
-      std::vector<std::string> parts = absl::StrSplit(range, ':');
-      if (parts.size() != 2 || (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
-          (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
-        return absl::InvalidArgumentError(absl::StrCat("--frames '", range, "' is not A:B"));
-    } else if (arg == "--voxel") {
-      RIM_ASSIGN_OR_RETURN(a.options.voxel_m, number("--voxel"));
-    } else if (arg == "--trunc") {
-      RIM_ASSIGN_OR_RETURN(a.options.truncation_m, number("--trunc"));
-    } else if (arg == "--carve") {
-      a.options.space_carving = true;
-    } else if (arg == "--min-weight") {
-      RIM_ASSIGN_OR_RETURN(double w, number("--min-weight"));
-      a.options.min_weight = float(w);
-      a.min_weight_given = true;
-    } else if (arg == "--max-range") {
-      RIM_ASSIGN_OR_RETURN(a.options.max_range_m, number("--max-range"));
-      max_range_given = true;
-    } else if (arg == "--min-range") {
-      RIM_ASSIGN_OR_RETURN(a.options.min_range_m, number("--min-range"));
-    } else if (arg == "-h" || arg == "--help") {
-      return absl::CancelledError(kUsage);
-    } else if (!arg.empty() && arg[0] == '-') {
-      return absl::InvalidArgumentError(absl::StrCat("unknown option ", arg));
-    } else if (a.dataset.empty()) {
-      a.dataset = arg;
-    } else {
-      return absl::InvalidArgumentError(absl::StrCat("unexpected argument ", arg));
-    }
-  }
+absl::Status CheckArgs(const CLI::App& app, Args& a) {
   if (a.dataset.empty()) return absl::InvalidArgumentError("missing DATASET");
   if (a.out.empty()) return absl::InvalidArgumentError("missing --out DIR");
-  if (!a.min_weight_given) a.options.min_weight = a.options.space_carving ? 1.f : 5.f;
+  if (app.count("--min-weight") == 0) a.options.min_weight = a.options.space_carving ? 1.f : 5.f;
   const TsdfOptions& o = a.options;
   if (!(o.voxel_m > 0)) return absl::InvalidArgumentError("--voxel must be > 0 metres");
   if (o.voxel_m < 1e-3)  // voxel indices are 32-bit
@@ -116,10 +106,10 @@ absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
   if (!(o.min_weight > 0)) return absl::InvalidArgumentError("--min-weight must be > 0");
   if (!(o.min_range_m >= 0)) return absl::InvalidArgumentError("--min-range must be >= 0 metres");
   if (!(o.max_range_m > o.min_range_m))
-    return absl::InvalidArgumentError(absl::StrCat(
-        max_range_given ? "--max-range" : "--min-range", " leaves no range: ", "--max-range ",
-        o.max_range_m, " must exceed --min-range ", o.min_range_m));
-  return a;
+    return absl::InvalidArgumentError(
+        absl::StrCat(app.count("--max-range") ? "--max-range" : "--min-range", " leaves no range: ",
+                     "--max-range ", o.max_range_m, " must exceed --min-range ", o.min_range_m));
+  return absl::OkStatus();
 }
 
 double PeakRssMib() {
@@ -217,17 +207,21 @@ absl::Status Run(const Args& args) {
 }  // namespace rim::bench
 
 int main(int argc, char** argv) {
-  auto args = rim::bench::ParseArgs(argc, argv);
-  if (!args.ok()) {
-    if (absl::IsCancelled(args.status())) {
-      std::fputs(rim::bench::kUsage, stdout);
-      return 0;
-    }
-    std::fprintf(stderr, "rim_tsdf: %s\n%s", std::string(args.status().message()).c_str(),
-                 rim::bench::kUsage);
+  rim::bench::Args args;
+  CLI::App app;
+  rim::bench::AddFlags(app, args);
+  absl::Status parsed = rim::cli::Parse(app, argc, argv);
+  if (absl::IsCancelled(parsed)) {
+    std::fputs(app.help().c_str(), stdout);
+    return 0;
+  }
+  if (parsed.ok()) parsed = rim::bench::CheckArgs(app, args);
+  if (!parsed.ok()) {
+    std::fprintf(stderr, "rim_tsdf: %s\n%s", std::string(parsed.message()).c_str(),
+                 app.help().c_str());
     return 2;
   }
-  const absl::Status s = rim::bench::Run(*args);
+  const absl::Status s = rim::bench::Run(args);
   if (!s.ok()) {
     std::fprintf(stderr, "rim_tsdf: %s\n", s.ToString().c_str());
     return 1;
