@@ -248,7 +248,7 @@ MapperStats Mapper::Stats() const {
   s.distance_surfels = distance.surfels;
   s.distance_returns = distance.returns;
   s.distance_bytes = distance.bytes;
-  s.mesh_cache_bytes = mesh_cache_->MemoryBytes();
+  s.mesh_cache_bytes = MeshCacheBytes();
   const SubmapStoreStats st = store_->Stats();
   s.submap_bytes = st.host_bytes;
   s.submaps_active = st.active;

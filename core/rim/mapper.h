@@ -188,15 +188,28 @@ class Mapper {
   // Tiles (one per sub-map) whose version is newer than `since_version`.
   std::vector<TileInfo> ListTiles(uint64_t since_version) const;
   // Marching cubes over one sub-map's observed voxels; neighbouring tiles share border vertices.
-  absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key) const;
+  // `resolution_m`: 0 for mesh.resolution_m, or one of MeshLevels().
+  absl::StatusOr<Mesh> ExtractMeshTile(const Int3& key, float resolution_m = 0) const;
   // The tile, re-meshing only the blocks that changed visibly since this tile was last meshed
   // here: blocks are cached for the tiles near the box (mesh/mesher.h, MeshBlockCache), and a
   // block whose SDF at the mesh grid moved by no more than mesh.remesh_tolerance_m keeps its mesh.
   // Every value the tile is meshed from is within that tolerance of the map's; with 0 it is
   // ExtractMeshTile's mesh (same vertices and faces, possibly in another order).
   absl::StatusOr<Mesh> MeshTile(const Int3& key, MeshUpdateStats* stats = nullptr) const;
-  // Blocks meshed, checked and skipped by MeshTile since creation.
+  // The same at a level of detail, one of MeshLevels() (0: mesh.resolution_m); each level has its
+  // own block cache, and a tolerance of mesh.remesh_tolerance_m scaled by the level's resolution
+  // over mesh.resolution_m. Any other resolution is InvalidArgument naming resolution_m.
+  absl::StatusOr<Mesh> MeshTile(const Int3& key, float resolution_m, MeshUpdateStats* stats) const;
+  // The levels of detail tiles are meshed at: mesh.resolution_m, then twice as coarse each, up to
+  // eight times, as far as the mesh grid allows (mesh/mesher.h, MeshGridOf). Finest first.
+  std::vector<float> MeshLevels() const;
+  // The level that `resolution_m` names: itself when it is one of MeshLevels() (within a
+  // micrometre), the finest for 0; otherwise InvalidArgument naming resolution_m and the levels.
+  absl::StatusOr<float> MeshLevel(float resolution_m) const;
+  // Blocks meshed, checked and skipped by MeshTile since creation, all levels together.
   MeshCacheTotals MeshTotals() const;
+  // Host memory of the cached mesh blocks, all levels together.
+  int64_t MeshCacheBytes() const;
 
   // Observed finest voxels of one sub-map (minimum-corner lattice indices): what its tile meshes.
   std::vector<Int3> ObservedVoxels(const Int3& key) const;
@@ -266,7 +279,10 @@ class Mapper {
   std::unique_ptr<DistanceField> distance_;
   // What each frame changed, and the mesh blocks of the tiles near the box (MeshTile).
   std::unique_ptr<MeshChangeLog> mesh_changes_;
-  std::unique_ptr<MeshBlockCache> mesh_cache_;
+  std::unique_ptr<MeshBlockCache> mesh_cache_;  // mesh.resolution_m
+  // Coarser levels' caches (MeshLevels() after the first), made when first asked for.
+  mutable std::mutex mesh_levels_mu_;
+  mutable std::vector<std::pair<float, std::unique_ptr<MeshBlockCache>>> mesh_level_caches_;
   // Refresh state (training thread only): the widened box of the last refresh, the frame count
   // then, and whether the decoder changed since (which moves every surfel).
   // Regions whose voxels the moving-things filter marked seen free in the global map since the

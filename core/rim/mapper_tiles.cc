@@ -1,10 +1,13 @@
 // Mapper: the tiles (one per sub-map) and their versions: what a frame changed (BumpVersions),
 // the moving things the box left behind (ClearDepartedLocked), and the tiles' listing, meshes and
 // observed voxels.
+#include <cmath>
 #include <cstdint>
 #include <mutex>
+#include <string>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "rim/map/local_map.h"
 #include "rim/map/slab_saver.h"
 #include "rim/map/submap_store.h"
@@ -69,13 +72,63 @@ std::vector<TileInfo> Mapper::ListTiles(uint64_t since_version) const {
   return out;
 }
 
-absl::StatusOr<Mesh> Mapper::ExtractMeshTile(const Int3& key) const {
+std::vector<float> Mapper::MeshLevels() const {
+  std::vector<float> out;
+  for (int k = 0; k <= 3; ++k) {
+    const float r = config_.mesh.resolution_m * float(1 << k);
+    if (MeshGridOf(*geometry_, r).ok()) out.push_back(r);
+  }
+  return out;
+}
+
+namespace {
+
+// The level of `levels` that `resolution_m` names (0: the finest), within a micrometre.
+absl::StatusOr<float> PickLevel(const std::vector<float>& levels, float resolution_m) {
+  if (resolution_m == 0.f && !levels.empty()) return levels.front();
+  for (float l : levels)
+    if (std::abs(l - resolution_m) < 1e-6f) return l;
+  std::string names;
+  for (float l : levels) absl::StrAppend(&names, names.empty() ? "" : ", ", l);
+  return absl::InvalidArgumentError(absl::StrCat("resolution_m ", resolution_m,
+                                                 " is not a level of this map's tiles (", names,
+                                                 " m, or 0 for the finest)"));
+}
+
+}  // namespace
+
+absl::StatusOr<float> Mapper::MeshLevel(float resolution_m) const {
+  return PickLevel(MeshLevels(), resolution_m);
+}
+
+absl::StatusOr<Mesh> Mapper::ExtractMeshTile(const Int3& key, float resolution_m) const {
+  auto level = MeshLevel(resolution_m);
+  if (!level.ok()) return level.status();
   saver_->Flush();
   MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
-  return ExtractTile(src, config_.mesh.resolution_m, key);
+  return ExtractTile(src, *level, key);
 }
 
 absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) const {
+  return MeshTile(key, 0.f, stats);
+}
+
+absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, float resolution_m,
+                                      MeshUpdateStats* stats) const {
+  auto level = MeshLevel(resolution_m);
+  if (!level.ok()) return level.status();
+  MeshBlockCache* cache = mesh_cache_.get();
+  if (*level != config_.mesh.resolution_m) {
+    std::lock_guard<std::mutex> lock(mesh_levels_mu_);
+    cache = nullptr;
+    for (auto& [l, c] : mesh_level_caches_)
+      if (l == *level) cache = c.get();
+    if (!cache) {
+      mesh_level_caches_.emplace_back(*level, std::make_unique<MeshBlockCache>());
+      cache = mesh_level_caches_.back().second.get();
+    }
+  }
+  const float tolerance = config_.mesh.remesh_tolerance_m * (*level / config_.mesh.resolution_m);
   saver_->Flush();
   bool keep = false;
   {
@@ -92,11 +145,28 @@ absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, MeshUpdateStats* stats) c
     }
   }
   MeshTileSource src{*geometry_, *local_map_, *store_, *decoder_, mu_};
-  return mesh_cache_->Update(src, config_.mesh.resolution_m, config_.mesh.remesh_tolerance_m, key,
-                             *mesh_changes_, keep, stats);
+  return cache->Update(src, *level, tolerance, key, *mesh_changes_, keep, stats);
 }
 
-MeshCacheTotals Mapper::MeshTotals() const { return mesh_cache_->Totals(); }
+MeshCacheTotals Mapper::MeshTotals() const {
+  MeshCacheTotals t = mesh_cache_->Totals();
+  std::lock_guard<std::mutex> lock(mesh_levels_mu_);
+  for (const auto& [level, cache] : mesh_level_caches_) {
+    const MeshCacheTotals c = cache->Totals();
+    t.blocks += c.blocks;
+    t.blocks_remeshed += c.blocks_remeshed;
+    t.blocks_checked += c.blocks_checked;
+    t.blocks_skipped += c.blocks_skipped;
+  }
+  return t;
+}
+
+int64_t Mapper::MeshCacheBytes() const {
+  int64_t bytes = mesh_cache_->MemoryBytes();
+  std::lock_guard<std::mutex> lock(mesh_levels_mu_);
+  for (const auto& [level, cache] : mesh_level_caches_) bytes += cache->MemoryBytes();
+  return bytes;
+}
 
 std::vector<Int3> Mapper::ObservedVoxels(const Int3& key) const {
   std::shared_lock lock(mu_);

@@ -102,6 +102,18 @@ absl::StatusOr<uint64_t> SinceParam(const std::string& query, const char* what) 
   return since;
 }
 
+// The level of detail of a tile request (`resolution_m`, metres): one of the session's levels, or
+// the finest when absent or 0 (Mapper::MeshLevel).
+absl::StatusOr<float> ResolutionParam(const std::string& query, const Mapper& mapper) {
+  std::string text;
+  if (!QueryValue(query, "resolution_m", &text)) return mapper.MeshLevel(0);
+  float value = 0;
+  if (text.empty() || text.size() > 20 || !absl::SimpleAtof(text, &value))
+    return absl::InvalidArgumentError(
+        absl::StrCat("resolution_m must be a number of metres, got '", text.substr(0, 40), "'"));
+  return mapper.MeshLevel(value);
+}
+
 json Vec(const Vec3d& v) { return json::array({v.x(), v.y(), v.z()}); }
 
 json SessionJson(Session& session) {
@@ -117,6 +129,7 @@ json SessionJson(Session& session) {
       {"queue_depth", stats.queue_depth},
       {"iterations_per_frame", stats.iterations_per_frame},
       {"rays_per_iteration", stats.rays_per_iteration},
+      {"mesh_levels_m", session.mapper().MeshLevels()},
       {"map_version", mapper.map_version},
       {"host_memory_bytes", uint64_t(mapper.local_map_bytes + mapper.submap_bytes)},
       {"submaps_active", mapper.submaps_active},
@@ -244,7 +257,7 @@ HttpResponse HttpApi::Handle(const HttpRequest& request) const {
   if (absl::Status s = CheckRobot(principal, robot); !s.ok()) return FromStatus(s);
   if (parts.size() == 1) return SessionEntry(robot);
   if (parts.size() == 2 && parts[1] == "tiles") return Tiles(robot, request.query);
-  if (parts.size() == 3 && parts[1] == "tiles") return TileBytes(robot, parts[2]);
+  if (parts.size() == 3 && parts[1] == "tiles") return TileBytes(robot, parts[2], request.query);
   if (parts.size() == 2 && parts[1] == "trajectory") return Trajectory(robot, request.query);
   return Error(404, absl::StrCat("no API path ", path.substr(0, 200)));
 }
@@ -269,6 +282,11 @@ HttpResponse HttpApi::Tiles(const std::string& robot, const std::string& query) 
   auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   Session& s = **session;
+  auto level = ResolutionParam(query, s.mapper());
+  if (!level.ok()) return FromStatus(level.status());
+  // A coarser level's URLs name it; the finest's stay as they were.
+  const std::string level_param =
+      *level == s.mapper().MeshLevels().front() ? "" : absl::StrCat("&resolution_m=", *level);
   const uint64_t map_version = s.mapper().map_version();
   // Oldest versions first, a whole version at a time, until the budget is spent: a listing of a
   // large map that changed everywhere answers in about kListBudgetSeconds, and `next_since`
@@ -291,7 +309,7 @@ HttpResponse HttpApi::Tiles(const std::string& robot, const std::string& query) 
       const TileInfo& tile = listed[i];
       // Meshed and encoded now unless cached at this version: the counts are those of the bytes
       // that the tile's URL serves.
-      auto encoded = s.tiles().Get(s.mapper(), tile);
+      auto encoded = s.tiles().Get(s.mapper(), tile, *level);
       if (!encoded.ok()) return FromStatus(encoded.status());
       const uint64_t version = (*encoded)->version;
       tiles.push_back({{"key", json::array({tile.key.x(), tile.key.y(), tile.key.z()})},
@@ -301,18 +319,20 @@ HttpResponse HttpApi::Tiles(const std::string& robot, const std::string& query) 
                        {"face_count", (*encoded)->face_count},
                        {"bytes", (*encoded)->draco.size()},
                        {"url", absl::StrCat(kApiPrefix, "/", robot, "/tiles/", TileName(tile.key),
-                                            ".drc?v=", version)}});
+                                            ".drc?v=", version, level_param)}});
     }
     next_since = group;
   }
   return Json(200, json{{"robot_id", robot},
                         {"map_version", map_version},
+                        {"resolution_m", *level},
                         {"tiles", tiles},
                         {"complete", complete},
                         {"next_since", next_since}});
 }
 
-HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& name) const {
+HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& name,
+                                const std::string& query) const {
   Int3 key;
   if (!ParseTileName(name, &key))
     return Error(404, absl::StrCat("no tile '", name.substr(0, 80),
@@ -320,9 +340,11 @@ HttpResponse HttpApi::TileBytes(const std::string& robot, const std::string& nam
   auto session = sessions_->Find(robot);
   if (!session.ok()) return FromStatus(session.status());
   Session& s = **session;
+  auto level = ResolutionParam(query, s.mapper());
+  if (!level.ok()) return FromStatus(level.status());
   for (const TileInfo& tile : s.mapper().ListTiles(0)) {
     if (tile.key != key) continue;
-    auto encoded = s.tiles().Get(s.mapper(), tile);
+    auto encoded = s.tiles().Get(s.mapper(), tile, *level);
     if (!encoded.ok()) return FromStatus(encoded.status());
     HttpResponse r;
     r.content_type = "application/octet-stream";

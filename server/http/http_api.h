@@ -66,7 +66,8 @@ class HttpApi {
   HttpResponse Sessions() const;
   HttpResponse SessionEntry(const std::string& robot) const;
   HttpResponse Tiles(const std::string& robot, const std::string& query) const;
-  HttpResponse TileBytes(const std::string& robot, const std::string& name) const;
+  HttpResponse TileBytes(const std::string& robot, const std::string& name,
+                         const std::string& query) const;
   HttpResponse Trajectory(const std::string& robot, const std::string& query) const;
 
   SessionManager* const sessions_;

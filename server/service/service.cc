@@ -75,6 +75,7 @@ void FillSessionInfo(Session& session, rim::v1::SessionInfo* info) {
   info->set_queue_depth(uint32_t(stats.queue_depth));
   info->set_iterations_per_frame(uint32_t(stats.iterations_per_frame));
   info->set_rays_per_iteration(uint32_t(stats.rays_per_iteration));
+  for (float level : session.mapper().MeshLevels()) info->add_mesh_levels_m(level);
   info->set_map_version(mapper.map_version);
   info->set_buffer_points(uint64_t(mapper.buffer_points));
   info->set_submaps_active(uint32_t(mapper.submaps_active));

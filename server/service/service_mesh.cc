@@ -26,6 +26,12 @@ class MeshTilesReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
       return;
     }
     session_ = *session;
+    auto level = session_->mapper().MeshLevel(request.resolution_m());
+    if (!level.ok()) {
+      Finish(ToGrpcStatus(level.status()));
+      return;
+    }
+    resolution_m_ = *level;
     for (const TileInfo& tile : session_->mapper().ListTiles(request.since_version())) {
       if (!request.has_region() || Intersects(tile, request.region())) tiles_.push_back(tile);
     }
@@ -49,7 +55,7 @@ class MeshTilesReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
       return;
     }
     const TileInfo& tile = tiles_[next_++];
-    auto encoded = session_->tiles().Get(session_->mapper(), tile);
+    auto encoded = session_->tiles().Get(session_->mapper(), tile, resolution_m_);
     if (!encoded.ok()) {
       Finish(ToGrpcStatus(encoded.status()));
       return;
@@ -71,10 +77,12 @@ class MeshTilesReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
     out_.set_draco((*encoded)->draco);
     out_.set_vertex_count((*encoded)->vertex_count);
     out_.set_face_count((*encoded)->face_count);
+    out_.set_resolution_m((*encoded)->resolution_m);
     StartWrite(&out_);
   }
 
   std::shared_ptr<Session> session_;
+  float resolution_m_ = 0;
   std::vector<TileInfo> tiles_;
   size_t next_ = 0;
   rim::v1::MeshTile out_;

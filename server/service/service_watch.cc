@@ -31,8 +31,12 @@ constexpr auto kBudgetSlice = std::chrono::milliseconds(50);
 
 class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
  public:
-  WatchReactor(std::shared_ptr<Session> session, uint64_t since_version, StreamLimiter::Slot slot)
-      : session_(std::move(session)), since_version_(since_version), slot_(std::move(slot)) {
+  WatchReactor(std::shared_ptr<Session> session, uint64_t since_version, float resolution_m,
+               StreamLimiter::Slot slot)
+      : session_(std::move(session)),
+        since_version_(since_version),
+        resolution_m_(resolution_m),
+        slot_(std::move(slot)) {
     watcher_ = std::thread([this] { Watch(); });
   }
 
@@ -95,7 +99,7 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
       const double waited = WaitForMeshingBudget();
       if (waited < 0) return false;
       const double cpu_start = ThreadCpuSeconds();
-      auto encoded = session_->tiles().Get(session_->mapper(), tile);
+      auto encoded = session_->tiles().Get(session_->mapper(), tile, resolution_m_);
       const double cpu = ThreadCpuSeconds() - cpu_start;
       if (MeshingBudget* budget = session_->meshing_budget()) budget->Charge(cpu);
       if (SessionEvents* events = session_->events())
@@ -186,6 +190,7 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
     m.set_draco(encoded.draco);
     m.set_vertex_count(encoded.vertex_count);
     m.set_face_count(encoded.face_count);
+    m.set_resolution_m(encoded.resolution_m);
     return m;
   }
 
@@ -207,6 +212,7 @@ class WatchReactor : public grpc::ServerWriteReactor<rim::v1::MeshTile> {
 
   std::shared_ptr<Session> session_;
   const uint64_t since_version_;
+  const float resolution_m_;        // the level of detail pushed
   const StreamLimiter::Slot slot_;  // released when the watch is done
   std::mutex mu_;
   std::condition_variable cv_;
@@ -232,7 +238,9 @@ grpc::ServerWriteReactor<rim::v1::MeshTile>* NewWatchReactor(
     StreamLimiter::Slot slot) {
   auto session = sessions->Get(request.robot_id());
   if (!session.ok()) return new FailedWatch(ToGrpcStatus(session.status()));
-  return new WatchReactor(*session, request.since_version(), std::move(slot));
+  auto level = (*session)->mapper().MeshLevel(request.resolution_m());
+  if (!level.ok()) return new FailedWatch(ToGrpcStatus(level.status()));
+  return new WatchReactor(*session, request.since_version(), *level, std::move(slot));
 }
 
 }  // namespace rim::server

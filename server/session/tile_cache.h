@@ -4,10 +4,11 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
-#include <unordered_map>
+#include <tuple>
 
 #include "absl/status/statusor.h"
 #include "rim/base/types.h"
@@ -17,6 +18,7 @@ namespace rim::server {
 
 struct EncodedTile {
   uint64_t version = 0;
+  float resolution_m = 0;  // the level of detail (Mapper::MeshLevels)
   std::string draco;
   uint32_t vertex_count = 0;
   uint32_t face_count = 0;  // faces in the payload (degenerate ones are not encoded)
@@ -32,13 +34,15 @@ class TileCache {
   using EncodedFn = std::function<void(size_t, double, int)>;
   explicit TileCache(EncodedFn on_encoded = nullptr) : on_encoded_(std::move(on_encoded)) {}
 
-  // The tile at `tile.version` or newer: from the cache when its encoding is that recent,
-  // otherwise meshed (Mapper::MeshTile: only its visibly changed blocks) and encoded now, unless
-  // no block changed visibly (the cached encoding is then tagged with the new version). A tile that
-  // changes while being meshed is tagged with the version read before, so it is simply
-  // re-encoded next time.
-  absl::StatusOr<std::shared_ptr<const EncodedTile>> Get(const Mapper& mapper,
-                                                         const TileInfo& tile);
+  // The tile at `tile.version` or newer, meshed at `resolution_m` (one of the mapper's
+  // MeshLevels(), or 0 for the finest; anything else is InvalidArgument naming resolution_m) and
+  // encoded with positions within the larger of 1 mm and resolution_m / 50. From the cache when
+  // its encoding is that recent, otherwise meshed (Mapper::MeshTile: only its visibly changed
+  // blocks) and encoded now, unless no block changed visibly (the cached encoding is then tagged
+  // with the new version). A tile that changes while being meshed is tagged with the version read
+  // before, so it is simply re-encoded next time. Each level is cached apart.
+  absl::StatusOr<std::shared_ptr<const EncodedTile>> Get(const Mapper& mapper, const TileInfo& tile,
+                                                         float resolution_m = 0);
 
   uint64_t hits() const;
   uint64_t misses() const;
@@ -46,7 +50,9 @@ class TileCache {
  private:
   const EncodedFn on_encoded_;
   mutable std::mutex mu_;
-  std::unordered_map<Int3, std::shared_ptr<const EncodedTile>, Int3Hash, Int3Equal> tiles_;
+  // Per sub-map key and level.
+  using Key = std::tuple<int, int, int, float>;
+  std::map<Key, std::shared_ptr<const EncodedTile>> tiles_;
   uint64_t hits_ = 0, misses_ = 0;
 };
 

@@ -208,6 +208,70 @@ TEST_F(MeshCacheTest, WatchedTilesEqualFromScratchTilesAndReuseUnchangedBlocks) 
   EXPECT_GT(mapper_->Stats().mesh_cache_bytes, 0);
 }
 
+// Levels of detail (Mapper::MeshLevels): a coarser level meshes the same surface within its
+// resolution, with a fraction of the fine tile's faces; its cached tiles equal its from-scratch
+// ones; and a resolution that is not a level is refused by name.
+TEST_F(MeshCacheTest, LevelsOfDetailMeshTheSameSurfaceWithinTheirResolution) {
+  for (size_t k = size_t(mapper_->frames()); k < frames_->size(); ++k)
+    ASSERT_TRUE(mapper_->IntegrateScan(frames_->Frame(k)).ok());
+  const std::vector<float> levels = mapper_->MeshLevels();
+  ASSERT_GE(levels.size(), 3u);
+  EXPECT_FLOAT_EQ(levels[0], mapper_->config().mesh.resolution_m);
+  for (size_t i = 1; i < levels.size(); ++i) EXPECT_FLOAT_EQ(levels[i], 2 * levels[i - 1]);
+
+  for (size_t i = 1; i < levels.size() && i <= 2; ++i) {
+    const float res = levels[i];
+    size_t fine_faces = 0, coarse_faces = 0;
+    std::vector<double> to_fine, to_coarse;
+    for (const TileInfo& tile : mapper_->ListTiles(0)) {
+      auto fine = mapper_->ExtractMeshTile(tile.key);
+      ASSERT_TRUE(fine.ok()) << fine.status();
+      MeshUpdateStats stats;
+      auto coarse = mapper_->MeshTile(tile.key, res, &stats);
+      ASSERT_TRUE(coarse.ok()) << coarse.status();
+      auto scratch = mapper_->ExtractMeshTile(tile.key, res);
+      ASSERT_TRUE(scratch.ok()) << scratch.status();
+      ASSERT_EQ(coarse->faces.size(), scratch->faces.size()) << res << " m";
+      EXPECT_LE(MaxFaceDifference(*coarse, *scratch), 1e-5) << res << " m";
+      fine_faces += fine->faces.size();
+      coarse_faces += coarse->faces.size();
+      if (fine->vertices.empty() || coarse->vertices.empty()) continue;
+      for (double d : NearestVertexDistances(*coarse, *fine, 2 * res)) to_fine.push_back(d);
+      for (double d : NearestVertexDistances(*fine, *coarse, 2 * res)) to_coarse.push_back(d);
+    }
+    ASSERT_GT(fine_faces, 1000u);
+    ASSERT_FALSE(to_fine.empty());
+    auto quantile = [](std::vector<double> v, double q) {
+      std::sort(v.begin(), v.end());
+      return v[size_t(q * double(v.size() - 1))];
+    };
+    const double acc50 = quantile(to_fine, 0.5), acc95 = quantile(to_fine, 0.95);
+    const double comp50 = quantile(to_coarse, 0.5), comp95 = quantile(to_coarse, 0.95);
+    std::printf(
+        "level %.2f m: faces %zu of the fine %zu (%.2f); coarse to fine vertex median %.3f, "
+        "p95 %.3f m; fine to coarse median %.3f, p95 %.3f m\n",
+        res, coarse_faces, fine_faces, double(coarse_faces) / double(fine_faces), acc50, acc95,
+        comp50, comp95);
+    // Nearest vertices, not surfaces: the fine level's vertices lie up to a fine cell apart.
+    EXPECT_LE(acc50, 0.5 * res);
+    EXPECT_LE(acc95, 1.0 * res);
+    EXPECT_LE(comp50, 0.5 * res);
+    EXPECT_LE(comp95, 1.0 * res);
+    // Twice as coarse: about a quarter of the faces.
+    EXPECT_LE(double(coarse_faces), 0.4 * double(fine_faces)) << res << " m";
+  }
+
+  const Int3 key = mapper_->ListTiles(0).front().key;
+  for (float bad : {0.07f, -0.1f, 3.2f, float(NAN)}) {
+    auto mesh = mapper_->MeshTile(key, bad, nullptr);
+    ASSERT_FALSE(mesh.ok()) << bad;
+    EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(mesh.status().message().find("resolution_m"), std::string::npos)
+        << mesh.status().message();
+  }
+  EXPECT_TRUE(mapper_->MeshTile(key, 0.f, nullptr).ok());  // 0: the finest level
+}
+
 // With a tolerance, a watched tile is meshed from values within the tolerance of the map's, so
 // its surface stays within about that distance of the from-scratch tile's.
 TEST_F(MeshCacheTest, WatchedTilesStayWithinTheToleranceOfFromScratchTiles) {

@@ -387,6 +387,74 @@ TEST_F(ServerE2eTest, MeshTilesDecode) {
   EXPECT_GT(faces, 0u);
 }
 
+// Levels of detail: the session lists its levels; each level's tiles decode, name their level,
+// and cost fewer bytes the coarser they are; a level the session does not have is refused by name,
+// by GetMeshTiles and WatchMeshTiles alike.
+TEST_F(ServerE2eTest, MeshTilesComeInLevelsOfDetail) {
+  rim::v1::SessionInfo info;
+  {
+    grpc::ClientContext ctx;
+    rim::v1::GetSessionRequest get;
+    get.set_robot_id(kRobot);
+    ASSERT_TRUE(g_stub->GetSession(&ctx, get, &info).ok());
+  }
+  ASSERT_GE(info.mesh_levels_m_size(), 3);
+  std::vector<size_t> bytes, faces;
+  for (int i = 0; i < 3; ++i) {
+    const float level = info.mesh_levels_m(i);
+    rim::v1::GetMeshTilesRequest request;
+    request.set_robot_id(kRobot);
+    request.set_resolution_m(level);
+    grpc::ClientContext ctx;
+    auto reader = g_stub->GetMeshTiles(&ctx, request);
+    rim::v1::MeshTile tile;
+    size_t b = 0, f = 0;
+    while (reader->Read(&tile)) {
+      EXPECT_FLOAT_EQ(tile.resolution_m(), level);
+      auto mesh = codec::DecodeTileDraco(tile.draco());
+      ASSERT_TRUE(mesh.ok()) << mesh.status();
+      b += tile.draco().size();
+      f += mesh->faces.size();
+    }
+    ASSERT_TRUE(reader->Finish().ok()) << level << " m";
+    std::printf("level %.3f m: %zu faces, %zu bytes\n", level, f, b);
+    bytes.push_back(b);
+    faces.push_back(f);
+  }
+  ASSERT_GT(faces[0], 0u);
+  EXPECT_GT(faces[2], 0u);
+  EXPECT_LT(faces[1], faces[0]);
+  EXPECT_LT(faces[2], faces[1]);
+  EXPECT_LE(3 * bytes[2], bytes[0]);  // a coarse tile costs at most a third of the fine one
+
+  for (float bad : {0.07f, -1.f}) {
+    rim::v1::GetMeshTilesRequest request;
+    request.set_robot_id(kRobot);
+    request.set_resolution_m(bad);
+    grpc::ClientContext ctx;
+    auto reader = g_stub->GetMeshTiles(&ctx, request);
+    rim::v1::MeshTile tile;
+    while (reader->Read(&tile)) {
+    }
+    const grpc::Status status = reader->Finish();
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << bad;
+    EXPECT_NE(status.error_message().find("resolution_m"), std::string::npos)
+        << status.error_message();
+  }
+  rim::v1::WatchMeshTilesRequest watch;
+  watch.set_robot_id(kRobot);
+  watch.set_resolution_m(0.07f);
+  grpc::ClientContext ctx;
+  auto reader = g_stub->WatchMeshTiles(&ctx, watch);
+  rim::v1::MeshTile tile;
+  while (reader->Read(&tile)) {
+  }
+  const grpc::Status status = reader->Finish();
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(status.error_message().find("resolution_m"), std::string::npos)
+      << status.error_message();
+}
+
 // Last (gtest runs tests in definition order): SIGTERM stops the server cleanly.
 TEST_F(ServerE2eTest, WatchMeshTilesPushesTilesAsTrainingChangesThem) {
   uint64_t since = 0;

@@ -135,6 +135,8 @@ struct WatchOptions {
   uint64_t since_version = 0;
   // Stop after this long (returning OK); 0: until the callback returns false or the session ends.
   std::chrono::milliseconds duration{0};
+  // Level of detail (mesh cell size, metres): one of SessionInfo.mesh_levels_m; 0 the finest.
+  float resolution_m = 0;
 };
 
 // The calls about one session. Obtained from Client::Session; copies share the connection.
@@ -158,9 +160,11 @@ class SessionHandle {
   absl::StatusOr<QueryResult> Query(const std::vector<Vec3f>& points_W,
                                     bool want_gradient = false) const;
 
-  // Every tile newer than since_version (only those meeting `region` when given), decoded.
+  // Every tile newer than since_version (only those meeting `region` when given), decoded, at
+  // level of detail `resolution_m` (one of SessionInfo.mesh_levels_m; 0 the finest).
   absl::StatusOr<std::vector<DecodedTile>> MeshTiles(
-      uint64_t since_version = 0, const std::optional<Box3d>& region = std::nullopt) const;
+      uint64_t since_version = 0, const std::optional<Box3d>& region = std::nullopt,
+      float resolution_m = 0) const;
 
   // Calls on_tile for each tile as training changes it, until on_tile returns false, the
   // duration passes (both OK) or the stream fails (its status; NOT_FOUND for an unknown session,

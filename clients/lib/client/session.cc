@@ -129,11 +129,12 @@ absl::StatusOr<QueryResult> SessionHandle::Query(const std::vector<Vec3f>& point
 }
 
 absl::StatusOr<std::vector<DecodedTile>> SessionHandle::MeshTiles(
-    uint64_t since_version, const std::optional<Box3d>& region) const {
+    uint64_t since_version, const std::optional<Box3d>& region, float resolution_m) const {
   client_internal::Connection& c = *connection_;
   rim::v1::GetMeshTilesRequest request;
   request.set_robot_id(robot_id_);
   request.set_since_version(since_version);
+  request.set_resolution_m(resolution_m);
   if (region) {
     auto* box = request.mutable_region();
     box->mutable_min()->set_x(region->min[0]);
@@ -171,6 +172,7 @@ absl::Status SessionHandle::Watch(const std::function<bool(const DecodedTile&)>&
   rim::v1::WatchMeshTilesRequest request;
   request.set_robot_id(robot_id_);
   request.set_since_version(options.since_version);
+  request.set_resolution_m(options.resolution_m);
   grpc::ClientContext context;
   c.Prepare(&context, robot_id_, options.duration);
   auto reader = c.stub().WatchMeshTiles(&context, request);

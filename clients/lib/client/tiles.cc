@@ -26,6 +26,7 @@ absl::StatusOr<DecodedTile> DecodeTile(const rim::v1::MeshTile& tile) {
   DecodedTile out;
   out.key = {tile.key_x(), tile.key_y(), tile.key_z()};
   out.version = tile.version();
+  out.resolution_m = tile.resolution_m();
   out.bounds_min = {tile.bounds().min().x(), tile.bounds().min().y(), tile.bounds().min().z()};
   out.bounds_max = {tile.bounds().max().x(), tile.bounds().max().y(), tile.bounds().max().z()};
   out.draco = tile.draco();

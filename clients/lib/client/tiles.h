@@ -23,8 +23,9 @@ struct DecodedTile {
   uint64_t version = 0;
   std::array<double, 3> bounds_min = {0, 0, 0};
   std::array<double, 3> bounds_max = {0, 0, 0};
-  std::string draco;  // the payload as received
-  Mesh mesh;          // decoded (empty for a tile whose surface went away)
+  std::string draco;       // the payload as received
+  Mesh mesh;               // decoded (empty for a tile whose surface went away)
+  float resolution_m = 0;  // its level of detail (mesh cell size, metres)
 };
 
 // Decodes `tile`'s Draco payload. DataLoss naming the tile key and version when the payload is

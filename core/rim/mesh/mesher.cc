@@ -39,6 +39,17 @@ namespace {
 
 using Piece = MeshBlockCache::Piece;
 
+// The mesh grid of a resolution: `r` cells per finest voxel edge (a resolution that divides the
+// leaf), or one cell per `s` finest voxels (a coarser level: a multiple of the leaf). One of the
+// two is 1. Grid points are numbered in steps of leaf·s/r from the world origin.
+struct GridSpec {
+  int r = 1, s = 1;
+  int CellsPerBlock() const { return kMeshBlockVoxels * r / s; }
+};
+
+// The share of a coarse cell's finest voxels that must be observed for the cell to be meshed.
+constexpr double kCoarseShare = 0.25;
+
 bool KeyLess(const Int3& a, const Int3& b) {
   return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
 }
@@ -87,21 +98,23 @@ uint64_t HashVoxels(const std::vector<Int3>& voxels) {
 }
 
 // The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
-// lies at m / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
+// lies at m·s / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
 // and the remainder over a power of two times r. Each lattice row is fetched once per block (on
 // first use) instead of once per point and corner. The result is a function of the point alone,
 // so blocks and tiles that share a point compute the same bits for it.
 class GridEncoder {
  public:
-  GridEncoder(const MapGeometry& geo, int r, const Int3& point0, int n, FeatureReader& reader,
-              BlockScratch& scratch)
+  GridEncoder(const MapGeometry& geo, GridSpec spec, const Int3& point0, int n,
+              FeatureReader& reader, BlockScratch& scratch)
       : L_(geo.levels()), D_(geo.feature_dim()), reader_(reader) {
+    const int mult = spec.s;
     for (int l = 0; l < L_; ++l) {
       Level& lv = levels_[l];
-      lv.scale = r << l;
-      lv.lo = FloorDiv(point0, Int3::Constant(lv.scale));
+      lv.scale = spec.r << l;
+      lv.lo = FloorDiv(Int3(point0 * mult), Int3::Constant(lv.scale));
       const Int3 hi =
-          FloorDiv(point0 + Int3::Constant(n - 1), Int3::Constant(lv.scale)) + Int3::Ones();
+          FloorDiv(Int3((point0 + Int3::Constant(n - 1)) * mult), Int3::Constant(lv.scale)) +
+          Int3::Ones();
       lv.dims = hi - lv.lo + Int3::Ones();
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
       // Rows are written before they are read (`have`): the buffer is reused from block to
@@ -118,7 +131,7 @@ class GridEncoder {
       for (int a = 0; a < 3; ++a) {
         lv.axis[a].resize(size_t(n));
         for (int t = 0; t < n; ++t) {
-          const int m = point0[a] + t;
+          const int m = (point0[a] + t) * mult;
           const int base = FloorDiv(m, lv.scale);
           const float f = float(m - base * lv.scale) * inv;
           Axis& e = lv.axis[a][size_t(t)];
@@ -155,7 +168,7 @@ class GridEncoder {
     alignas(32) float lanes[8];
   };
   struct Level {
-    int scale = 1;  // grid points per voxel of the level
+    int scale = 1;  // r·2^l: the level's voxel edge in 1/r finest voxels
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
     float* rows = nullptr;  // count·D floats of BlockScratch::rows[level]
     std::vector<uint8_t> have;
@@ -241,17 +254,16 @@ class GridEncoder {
   Level levels_[kMaxLevels];
 };
 
-// One block's mesh grid: the cells of its observed voxels at r cells per voxel edge, their grid
-// points (dense-indexed in the scratch table while the grid lives) and the SDF at them.
+// One block's mesh grid: the cells of its observed voxels at r cells per voxel edge (or the coarse
+// cells of s finest voxels that hold observed ones), their grid points (dense-indexed in the
+// scratch table while the grid lives) and the SDF at them.
 class BlockGrid {
  public:
   // Evaluates the block's grid. Caller holds the shared lock.
-  BlockGrid(const MeshTileSource& src, int r, const Int3& block, const std::vector<Int3>& voxels,
-            FeatureReader& reader, BlockScratch& scratch)
-      : r_(r),
-        n_(kMeshBlockVoxels * r + 1),
-        point0_(block * kMeshBlockVoxels * r),
-        scratch_(scratch) {
+  BlockGrid(const MeshTileSource& src, GridSpec spec, const Int3& block,
+            const std::vector<Int3>& voxels, FeatureReader& reader, BlockScratch& scratch)
+      : n_(spec.CellsPerBlock() + 1), point0_(block * spec.CellsPerBlock()), scratch_(scratch) {
+    const int r = spec.r;
     const Int3 voxel0 = block * kMeshBlockVoxels;
     // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
     // corner), so it counts as observed: a point is observed when any voxel that shares it is.
@@ -259,31 +271,16 @@ class BlockGrid {
     // table is the call's, all -1 between blocks: the destructor resets the entries set here.
     std::vector<int32_t>& point_index = scratch.point_index;
     if (point_index.size() != size_t(n_) * n_ * n_) point_index.assign(size_t(n_) * n_ * n_, -1);
-    cells_.reserve(voxels.size() * r * r * r);
-    points_.reserve(voxels.size() * (r + 1) * (r + 1) * (r + 1) / 2);
-    for (const Int3& g : voxels) {
-      const Int3 c0 = (g - voxel0) * r;
-      for (int i = 0; i < r; ++i)
-        for (int j = 0; j < r; ++j)
-          for (int k = 0; k < r; ++k) cells_.push_back(point0_ + c0 + Int3(i, j, k));
-      // The voxel's (r + 1)³ grid points: the corners of its cells, in an order fixed by the
-      // voxels (a point's value does not depend on its batch).
-      for (int i = 0; i <= r; ++i)
-        for (int j = 0; j <= r; ++j) {
-          const size_t row = Local(c0 + Int3(i, j, 0));
-          for (int k = 0; k <= r; ++k) {
-            int32_t& idx = point_index[row + size_t(k)];
-            if (idx >= 0) continue;
-            idx = int32_t(points_.size());
-            points_.push_back(c0 + Int3(i, j, k));
-          }
-        }
+    if (spec.s > 1) {
+      CoarseCells(spec.s, voxels);
+    } else {
+      FineCells(r, voxel0, voxels);
     }
     if (points_.empty()) return;
     const int F = src.geometry.encoding_dim();
     if (scratch.features.size() < points_.size() * F) scratch.features.resize(points_.size() * F);
     values_.resize(points_.size());
-    GridEncoder encoder(src.geometry, r, point0_, n_, reader, scratch);
+    GridEncoder encoder(src.geometry, spec, point0_, n_, reader, scratch);
     encoder.EncodeAll(points_, scratch.features.data());
     src.decoder.Forward(scratch.features.data(), int(points_.size()), values_.data());
   }
@@ -310,7 +307,7 @@ class BlockGrid {
     Mesh mesh = MarchingCubes(cells_, samples, &edges);
     piece->vertices = std::move(mesh.vertices);
     piece->faces = std::move(mesh.faces);
-    const int last = kMeshBlockVoxels * r_;
+    const int last = n_ - 1;
     for (size_t i = 0; i < edges.size(); ++i) {
       const Int3 m = edges[i].lower - point0_;
       bool on_face = false;
@@ -325,7 +322,61 @@ class BlockGrid {
  private:
   size_t Local(const Int3& m) const { return (size_t(m.x()) * n_ + m.y()) * n_ + m.z(); }
 
-  const int r_, n_;  // cells per voxel edge, grid points per block edge
+  // Adds grid point `m` (block-local) once.
+  void AddPoint(const Int3& m) {
+    int32_t& idx = scratch_.point_index[Local(m)];
+    if (idx >= 0) return;
+    idx = int32_t(points_.size());
+    points_.push_back(m);
+  }
+
+  void FineCells(int r, const Int3& voxel0, const std::vector<Int3>& voxels) {
+    std::vector<int32_t>& point_index = scratch_.point_index;
+    cells_.reserve(voxels.size() * r * r * r);
+    points_.reserve(voxels.size() * (r + 1) * (r + 1) * (r + 1) / 2);
+    for (const Int3& g : voxels) {
+      const Int3 c0 = (g - voxel0) * r;
+      for (int i = 0; i < r; ++i)
+        for (int j = 0; j < r; ++j)
+          for (int k = 0; k < r; ++k) cells_.push_back(point0_ + c0 + Int3(i, j, k));
+      // The voxel's (r + 1)³ grid points: the corners of its cells, in an order fixed by the
+      // voxels (a point's value does not depend on its batch).
+      for (int i = 0; i <= r; ++i)
+        for (int j = 0; j <= r; ++j) {
+          const size_t row = Local(c0 + Int3(i, j, 0));
+          for (int k = 0; k <= r; ++k) {
+            int32_t& idx = point_index[row + size_t(k)];
+            if (idx >= 0) continue;
+            idx = int32_t(points_.size());
+            points_.push_back(c0 + Int3(i, j, k));
+          }
+        }
+    }
+  }
+
+  // Coarse cells of s finest voxels per edge: a cell is meshed when at least kCoarseShare of its
+  // finest voxels are observed, so that a coarse tile covers what the fine one does without
+  // reaching far into voxels no ray constrained.
+  void CoarseCells(int s, const std::vector<Int3>& voxels) {
+    absl::flat_hash_map<Int3, int, Int3Hash, Int3Equal> count;
+    for (const Int3& g : voxels) ++count[FloorDiv(g, Int3::Constant(s))];
+    const int need = std::max(1, int(std::ceil(kCoarseShare * s * s * s)));
+    std::vector<Int3> cells;
+    for (const auto& [c, k] : count)
+      if (k >= need) cells.push_back(c);
+    // In key order: the grid points' order follows the voxels alone.
+    std::sort(cells.begin(), cells.end(), KeyLess);
+    cells_.reserve(cells.size());
+    for (const Int3& c : cells) {
+      cells_.push_back(c);
+      const Int3 c0 = c - point0_;
+      for (int i = 0; i <= 1; ++i)
+        for (int j = 0; j <= 1; ++j)
+          for (int k = 0; k <= 1; ++k) AddPoint(c0 + Int3(i, j, k));
+    }
+  }
+
+  const int n_;  // grid points per block edge
   const Int3 point0_;
   BlockScratch& scratch_;
   std::vector<Int3> cells_, points_;
@@ -374,12 +425,10 @@ Mesh Weld(const std::vector<std::shared_ptr<const Piece>>& pieces) {
   return out;
 }
 
-absl::StatusOr<int> CellsPerVoxel(const MapGeometry& geo, float resolution_m) {
-  const int r = int(std::lround(geo.leaf_m() / resolution_m));
-  if (r < 1 || std::abs(r * double(resolution_m) - geo.leaf_m()) > 1e-6)
-    return absl::InvalidArgumentError(
-        absl::StrCat("mesh resolution ", resolution_m, " m does not divide the leaf size"));
-  return r;
+absl::StatusOr<GridSpec> MeshGridSpec(const MapGeometry& geo, float resolution_m) {
+  auto spec = MeshGridOf(geo, resolution_m);
+  if (!spec.ok()) return spec.status();
+  return GridSpec{spec->first, spec->second};
 }
 
 // Meshes a tile from its blocks. A block whose piece in `cached` is still current (no change in
@@ -393,9 +442,9 @@ absl::StatusOr<Mesh> MeshTileBlocks(
     absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal>* cached,
     MeshUpdateStats* stats, bool* changed) {
   const MapGeometry& geo = src.geometry;
-  auto r = CellsPerVoxel(geo, resolution_m);
-  if (!r.ok()) return r.status();
-  const double step = geo.leaf_m() / *r;
+  auto spec = MeshGridSpec(geo, resolution_m);
+  if (!spec.ok()) return spec.status();
+  const double step = geo.leaf_m() * spec->s / spec->r;
   const uint64_t stamp = log ? log->Stamp() : 0;
   const TileVoxels voxels = CollectTileVoxels(src, key);
   // A feature row of level l at lattice point p reaches grid points within 2^l finest voxels of
@@ -428,7 +477,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
     const uint64_t hash = keep_values ? HashVoxels(block_voxels) : 0;
     std::shared_lock lock(src.mutex);
     FeatureReader reader(src.local_map, src.store);
-    BlockGrid grid(src, *r, block, block_voxels, reader, scratch);
+    BlockGrid grid(src, *spec, block, block_voxels, reader, scratch);
     lock.unlock();
     if (old && !old->values.empty() && old->voxels_hash == hash) {
       ++s.blocks_checked;
@@ -458,6 +507,29 @@ absl::StatusOr<Mesh> MeshTileBlocks(
 }
 
 }  // namespace
+
+absl::StatusOr<std::pair<int, int>> MeshGridOf(const MapGeometry& geo, float resolution_m) {
+  const auto bad = [&](const char* why) {
+    return absl::InvalidArgumentError(absl::StrCat("mesh resolution_m ", resolution_m, " m ", why,
+                                                   " (leaf ", geo.leaf_m(), " m)"));
+  };
+  if (!(resolution_m > 0.f) || !std::isfinite(resolution_m)) return bad("must be > 0");
+  if (resolution_m <= geo.leaf_m() + 1e-6) {
+    const int r = int(std::lround(geo.leaf_m() / resolution_m));
+    if (r < 1 || r > kMeshBlockVoxels || std::abs(r * double(resolution_m) - geo.leaf_m()) > 1e-6)
+      return bad("does not divide the leaf size");
+    return std::make_pair(r, 1);
+  }
+  const int s = int(std::lround(resolution_m / geo.leaf_m()));
+  // A coarse cell must not straddle a mesh block or a sub-map: s divides both.
+  const Int3 cells = geo.cells(0);
+  if (std::abs(s * geo.leaf_m() - double(resolution_m)) > 1e-6 || kMeshBlockVoxels % s != 0 ||
+      cells.x() % s != 0 || cells.y() % s != 0 || cells.z() % s != 0)
+    return bad(
+        "is neither a divisor of the leaf size nor the leaf times a power of two up to 16 "
+        "that divides the sub-map");
+  return std::make_pair(1, s);
+}
 
 std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
   const MapGeometry& geo = src.geometry;

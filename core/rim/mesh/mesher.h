@@ -6,6 +6,7 @@
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
+#include <utility>
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
@@ -36,9 +37,16 @@ inline constexpr int kMeshBlockVoxels = 16;
 // from the live local map inside the box, from the store elsewhere. Caller holds the shared lock.
 std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key);
 
-// Meshes the tile of sub-map `key` at `resolution_m` (which divides the leaf size).
-// - Only observed finest voxels are visited (sparse), and a mesh cell is meshed only when all its
-//   grid points lie in observed voxels.
+// The mesh grid of `resolution_m`: (r, 1) for r cells per finest voxel edge (a resolution that
+// divides the leaf), (1, s) for one cell per s finest voxels (a coarser level of detail: the leaf
+// times s, s a power of two that divides a mesh block and the sub-map). Anything else is
+// InvalidArgument naming resolution_m.
+absl::StatusOr<std::pair<int, int>> MeshGridOf(const MapGeometry& geo, float resolution_m);
+
+// Meshes the tile of sub-map `key` at `resolution_m` (MeshGridOf).
+// - Only observed finest voxels are visited (sparse). A fine cell is meshed when it lies in an
+//   observed voxel; a coarse cell (resolution above the leaf) when at least a quarter of its
+//   finest voxels are observed.
 // - The tile owns the mesh cells whose minimum corner lies in its sub-map; cells on its upper
 //   border read features across the border, so neighbouring tiles compute bit-identical vertices
 //   on their shared faces (no seams, no gaps).
