@@ -73,12 +73,13 @@ void AddSimFlags(CLI::App& app, SimOptions& o) {
   app.footer(kFooter);
   auto integer = [&app](const char* flag, int* out, int lo, int hi, const char* description) {
     const std::string want = absl::StrFormat("an integer in [%d, %d]", lo, hi);
-    return app.add_option(flag, *out, description)->check(cli::IntegerIn(lo, hi, Must(flag, want)));
+    return app.add_option(flag, *out, description)
+        ->transform(cli::IntegerIn(lo, hi, Must(flag, want)));
   };
   auto share = [&app](const char* flag, double* out, const char* description) {
     return app.add_option(flag, *out, description)
         ->type_name("F")
-        ->check(cli::NumberIn(0.0, 1.0, true, Must(flag, "a share in [0, 1]")));
+        ->transform(cli::NumberIn(0.0, 1.0, true, Must(flag, "a share in [0, 1]")));
   };
 
   app.add_option_function<std::string>(
@@ -88,20 +89,22 @@ void AddSimFlags(CLI::App& app, SimOptions& o) {
          },
          "scene to generate (default city)")
       ->type_name("city|room")
-      ->check(cli::Check([](std::string& v) { return v == "city" || v == "room"; },
-                         [](const std::string& v) {
-                           return absl::StrCat("unknown --scene '", v, "' (expected city or room)");
-                         }));
+      ->transform(cli::Check([](std::string& v) { return v == "city" || v == "room"; },
+                             [](const std::string& v) {
+                               return absl::StrCat("unknown --scene '", v,
+                                                   "' (expected city or room)");
+                             }));
   app.add_option("--out", o.out_dir, "output folder, created if missing (required)")
       ->type_name("DIR")
-      ->check(
+      ->transform(
           cli::Check([](std::string& v) { return !v.empty(); }, Must("--out", "a folder path")));
   integer("--frames", &o.frames, 1, 1000000, "number of frames, >= 1 (default 100)")
       ->type_name("N");
   app.add_option("--noise", o.noise,
                  "Gaussian range/depth noise, standard deviation in metres (default 0)")
       ->type_name("M")
-      ->check(cli::NumberIn(0.0, 10.0, true, Must("--noise", "a standard deviation in [0, 10] m")));
+      ->transform(
+          cli::NumberIn(0.0, 10.0, true, Must("--noise", "a standard deviation in [0, 10] m")));
   integer("--walkers", &o.walkers, 0, 10000,
           "city: pedestrians walking along the sidewalks, in the scans only (default 0)")
       ->type_name("K");
@@ -117,7 +120,7 @@ void AddSimFlags(CLI::App& app, SimOptions& o) {
       ->type_name("K");
   app.add_option("--seed", o.seed, "scene seed, a non-negative integer (default 1)")
       ->type_name("S")
-      ->check(cli::Check(
+      ->transform(cli::Check(
           [](std::string& v) {
             uint64_t seed;
             if (v.empty() || v[0] == '-' || !absl::SimpleAtoi(v, &seed)) return false;
@@ -127,14 +130,14 @@ void AddSimFlags(CLI::App& app, SimOptions& o) {
           Must("--seed", "a non-negative integer")));
   app.add_option("--step", o.step, "metres travelled per frame (default 1 for city, 0.1 for room)")
       ->type_name("M")
-      ->check(cli::NumberIn(0.0, 100.0, false, Must("--step", "in (0, 100] m")));
+      ->transform(cli::NumberIn(0.0, 100.0, false, Must("--step", "in (0, 100] m")));
   integer("--columns", &o.columns, 16, 36000, "city: LiDAR columns per revolution (default 1800)")
       ->type_name("C");
   app.add_option("--gt-margin", o.gt_margin,
                  "city: gt.ply covers the drive's extent grown by M metres (default 80, the\n"
                  "LiDAR's range)")
       ->type_name("M")
-      ->check(cli::NumberIn(0.0, 10000.0, true, Must("--gt-margin", "in [0, 10000] m")));
+      ->transform(cli::NumberIn(0.0, 10000.0, true, Must("--gt-margin", "in [0, 10000] m")));
   app.add_option_function<std::string>(
          "--observed-box",
          [&o](const std::string& value) {

@@ -6,7 +6,7 @@
 //   rim::cli::SetHelp(app, "usage: rim_x DATASET --out DIR [--voxel M]", "What it does.");
 //   app.add_option("--voxel", voxel, "voxel size in metres (default 0.1)")
 //       ->type_name("M")
-//       ->check(rim::cli::NumberIn(1e-3, 10, true, [](const std::string& v) {
+//       ->transform(rim::cli::NumberIn(1e-3, 10, true, [](const std::string& v) {
 //         return "--voxel must be in [0.001, 10], got '" + v + "'";
 //       }));
 //   const absl::Status parsed = rim::cli::Parse(app, argc, argv);
@@ -14,12 +14,14 @@
 //   // error whose message names the flag, exit 2.
 //
 // The conventions:
-//   - `--flag value` and `--flag=value` alike; flags take no value;
+//   - `--flag value` and `--flag=value` alike; a switch (add_flag) is given alone;
 //   - usage errors read "unknown flag '--x'", "unexpected argument 'x'", "--x needs a value",
 //     "--x given more than once" (options that keep their last value instead say
 //     ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast)), or what a check below says;
 //   - numbers are read as rim always read them (absl::SimpleAtoi / SimpleAtod: decimal only, so
-//     "010" is ten, where CLI11 alone would read octal eight) and reach CLI11 in plain decimal;
+//     "010" is ten, where CLI11 alone would read octal eight) and reach CLI11 in plain decimal:
+//     attach the checks below with ->transform(), which lets them rewrite the text (->check()
+//     would hand CLI11 the text as given);
 //   - a check's message is printed as it is: it names the flag itself, in a sentence.
 #pragma once
 
@@ -51,8 +53,8 @@ class UsageError : public CLI::ParseError {
 // The message for a bad value TEXT of one flag.
 using Message = std::function<std::string(const std::string& text)>;
 
-// A check on a flag's text before CLI11 converts it: ACCEPT(text) may rewrite the text and returns
-// false for a bad value, whose usage error is then MESSAGE(text).
+// A check on a flag's text before CLI11 converts it (attach with ->transform()): ACCEPT(text) may
+// rewrite the text and returns false for a bad value, whose usage error is then MESSAGE(text).
 inline CLI::Validator Check(std::function<bool(std::string&)> accept, Message message) {
   return CLI::Validator(
       [accept = std::move(accept), message = std::move(message)](std::string& text) {

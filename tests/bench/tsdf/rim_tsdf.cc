@@ -70,26 +70,26 @@ void AddFlags(CLI::App& app, Args& a) {
            ->type_name("A:B"));
   last(app.add_option("--voxel", a.options.voxel_m, "voxel size in metres (default 0.1)")
            ->type_name("M")
-           ->check(finite("--voxel")));
+           ->transform(finite("--voxel")));
   last(app.add_option("--trunc", a.options.truncation_m,
                       "truncation distance in metres, at least the voxel (default 0.3)")
            ->type_name("M")
-           ->check(finite("--trunc")));
+           ->transform(finite("--trunc")));
   app.add_flag("--carve", a.options.space_carving,
                "space carving: rays clear the free space from the sensor on");
   last(app.add_option("--min-weight", a.options.min_weight,
                       "mesh only cubes whose corners have this weight (default 1 with --carve,\n"
                       "5 without)")
            ->type_name("W")
-           ->check(finite("--min-weight")));
+           ->transform(finite("--min-weight")));
   last(app.add_option("--max-range", a.options.max_range_m,
                       "skip returns farther than this (default 60)")
            ->type_name("M")
-           ->check(finite("--max-range")));
+           ->transform(finite("--max-range")));
   last(app.add_option("--min-range", a.options.min_range_m,
                       "skip returns nearer than this (default 0.3)")
            ->type_name("M")
-           ->check(finite("--min-range")));
+           ->transform(finite("--min-range")));
 }
 
 absl::Status CheckArgs(const CLI::App& app, Args& a) {
