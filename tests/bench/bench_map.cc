@@ -160,6 +160,10 @@ void BM_MeshUpdate(benchmark::State& state) {
   absl::StatusOr<std::unique_ptr<Mapper>> created = Mapper::Create(config);
   CheckOk(created.status(), "Mapper::Create");
   Mapper& mapper = **created;
+  // The watcher's level of detail (cm; 0: the finest), quantised as the service does.
+  const float level = float(state.range(3)) * 0.01f;
+  CheckOk(mapper.MeshLevel(level).status(), "MeshLevel");
+  const double max_error_m = std::max(0.001, double(*mapper.MeshLevel(level)) / 50);
   const std::vector<PosedScan>& frames = CitySequence();
   const int start = std::min<int>(Options().map_frames, int(frames.size()) - 1);
   for (int k = 0; k < start; ++k) CheckOk(mapper.IntegrateScan(frames[k]), "IntegrateScan");
@@ -167,11 +171,11 @@ void BM_MeshUpdate(benchmark::State& state) {
   // has been watching since the start has its blocks cached.
   uint64_t since = 0;
   for (const TileInfo& tile : mapper.ListTiles(0)) {
-    CheckOk(mapper.MeshTile(tile.key).status(), "MeshTile");
+    CheckOk(mapper.MeshTile(tile.key, level, nullptr).status(), "MeshTile");
     since = std::max(since, tile.version);
   }
   int next = start;
-  size_t tiles = 0, faces = 0, pushes = 0;
+  size_t tiles = 0, faces = 0, pushes = 0, bytes = 0, encoded = 0;
   int64_t blocks = 0, remeshed = 0, checked = 0, skipped = 0;
   // A tile whose mesh generation did not move keeps its encoding (server/session/tile_cache.h).
   std::map<std::array<int, 3>, uint64_t> generations;
@@ -191,7 +195,8 @@ void BM_MeshUpdate(benchmark::State& state) {
       mesh_clock.Start();
       MeshUpdateStats stats;
       absl::StatusOr<Mesh> m =
-          incremental ? mapper.MeshTile(tile.key, &stats) : mapper.ExtractMeshTile(tile.key);
+          incremental ? mapper.MeshTile(tile.key, level, &stats)
+                      : mapper.ExtractMeshTile(tile.key, level);
       mesh_clock.Stop();
       CheckOk(m.status(), "MeshTile");
       uint64_t& generation = generations[{tile.key.x(), tile.key.y(), tile.key.z()}];
@@ -199,8 +204,11 @@ void BM_MeshUpdate(benchmark::State& state) {
         encode_clock.Start();
         const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
         const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-        CheckOk(codec::EncodeTileDraco(*m, lo, hi).status(), "EncodeTileDraco");
+        absl::StatusOr<std::string> draco = codec::EncodeTileDraco(*m, lo, hi, max_error_m);
         encode_clock.Stop();
+        CheckOk(draco.status(), "EncodeTileDraco");
+        bytes += draco->size();
+        ++encoded;
       }
       generation = stats.generation;
       newest = std::max(newest, tile.version);
@@ -224,6 +232,7 @@ void BM_MeshUpdate(benchmark::State& state) {
   state.counters["mesh_ms_per_tile"] = 1e3 * mesh_clock.seconds() / std::max<double>(1, tiles);
   state.counters["encode_ms_per_tile"] = 1e3 * encode_clock.seconds() / std::max<double>(1, tiles);
   state.counters["push_ms_median"] = push_ms.empty() ? 0 : push_ms[push_ms.size() / 2];
+  state.counters["bytes_per_tile"] = double(bytes) / std::max<double>(1, double(encoded));
   if (incremental) {
     state.counters["blocks_remeshed_fraction"] =
         double(remeshed) / std::max<double>(1, double(blocks));
@@ -297,11 +306,13 @@ void RegisterMapBenchmarks() {
   // Thirty frames: pushes after every frame, from scratch and incremental, and every tenth frame
   // (a watcher at watch.min_interval_s = 1 s of a robot at 10 Hz), incremental.
   benchmark::RegisterBenchmark("MeshUpdate", BM_MeshUpdate)
-      ->ArgNames({"incremental", "frames_per_push", "remesh_tolerance_mm"})
-      ->Args({0, 1, 0})
-      ->Args({1, 1, 0})
-      ->Args({1, 10, 0})
-      ->Args({1, 10, 5})
+      ->ArgNames({"incremental", "frames_per_push", "remesh_tolerance_mm", "level_cm"})
+      ->Args({0, 1, 0, 0})
+      ->Args({1, 1, 0, 0})
+      ->Args({1, 10, 0, 0})
+      ->Args({1, 10, 5, 0})
+      ->Args({1, 10, 5, 10})
+      ->Args({1, 10, 5, 20})
       ->Iterations(30)
       ->Unit(benchmark::kMillisecond)
       ->UseRealTime();
