@@ -31,7 +31,10 @@
 //
 // Usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]
 //                 [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]
-//                 [--baseline S] [--set key=value ...] [--json FILE]
+//                 [--baseline S] [--set key=value ...] [--json FILE] [--tile-resolution M]
+//
+// --tile-resolution M: the dashboards watch the tiles at level of detail M metres (one of the
+// sessions' mesh_levels_m; default 0, the finest).
 //
 // --baseline S first runs the robots alone (no planners, no dashboards) for S seconds on sessions
 // of their own ("baseline_robot_N", summary lines under "rim_load baseline: ..."), then the load
@@ -83,6 +86,7 @@ struct Options {
   double rate_hz = 10, duration_s = 60;
   double query_rate_hz = 0;  // batches per second per planner; 0: back to back
   double baseline_s = 0;     // the robots alone for this long first; 0: no baseline phase
+  double tile_resolution_m = 0;  // the dashboards' level of detail; 0: the finest
   std::vector<std::pair<std::string, std::string>> overrides;  // --set key=value
   std::string json_path;                                       // --json FILE; empty: none
 };
@@ -115,6 +119,8 @@ bool Parse(int argc, char** argv, Options* o) {
       o->query_rate_hz = std::atof(v.c_str());
     else if (k == "--baseline")
       o->baseline_s = std::atof(v.c_str());
+    else if (k == "--tile-resolution")
+      o->tile_resolution_m = std::atof(v.c_str());
     else if (k == "--json" && !v.empty())
       o->json_path = v;
     else if (k == "--set" && v.find('=') != std::string::npos && v.find('=') > 0)
@@ -127,7 +133,8 @@ bool Parse(int argc, char** argv, Options* o) {
          o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
          o->batch <= 1000000 && o->frames >= 0 && o->frames <= 1000 &&
          std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000 &&
-         std::isfinite(o->baseline_s) && o->baseline_s >= 0 && o->baseline_s <= 3600;
+         std::isfinite(o->baseline_s) && o->baseline_s >= 0 && o->baseline_s <= 3600 &&
+         std::isfinite(o->tile_resolution_m) && o->tile_resolution_m >= 0;
 }
 
 double Quantile(std::vector<double> v, double q) {
@@ -261,6 +268,7 @@ Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::Pos
     threads.emplace_back([&, d] {
       rim::WatchOptions options;
       options.duration = std::chrono::milliseconds(int64_t(o.duration_s * 1000));
+      options.resolution_m = float(o.tile_resolution_m);
       const absl::Status s =
           client.Session(robots[d % robots.size()])
               .Watch(
@@ -367,7 +375,7 @@ int main(int argc, char** argv) {
                  "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
                  "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
                  "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--baseline S<=3600] "
-                 "[--set key=value ...] [--json FILE]\n");
+                 "[--set key=value ...] [--json FILE] [--tile-resolution M, 0 = finest]\n");
     return 2;
   }
   if (!Loopback(o.server)) {
@@ -425,7 +433,8 @@ int main(int argc, char** argv) {
                                      {"batch", o.batch},
                                      {"frames", o.frames},
                                      {"query_rate_hz", o.query_rate_hz},
-                                     {"baseline_s", o.baseline_s}}},
+                                     {"baseline_s", o.baseline_s},
+                                     {"tile_resolution_m", o.tile_resolution_m}}},
                                    {"load", loaded.json}};
     nlohmann::ordered_json set = nlohmann::ordered_json::object();
     for (const auto& [key, value] : o.overrides) set[key] = value;
