@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -23,6 +24,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "rim/base/flags.h"
 #include "rim/eval/box_union.h"
 #include "rim/eval/mesh_eval.h"
 #include "rim/io/dataset.h"
@@ -37,34 +39,16 @@ using rim::eval::InputKind;
 using rim::eval::InputKindName;
 using rim::eval::Metrics;
 
-constexpr char kUsage[] =
+constexpr char kSynopsis[] =
     "usage: rim_eval PRED.ply GT.ply [--json] [--samples N] [--threads N] [--seed S]\n"
     "                [--voxel M] [--no-crop] [--region x0,y0,z0,x1,y1,z1]\n"
-    "                [--box HX,HY,ZMIN,ZMAX --seq DIR] [--misses FILE] [--floaters FILE]\n"
-    "  --json         print one JSON object instead of the table\n"
-    "  --samples N    points sampled on each mesh before voxel averaging (default 1e7)\n"
-    "  --threads N    worker threads (default: all cores)\n"
-    "  --seed S       sampling seed (default 1)\n"
-    "  --voxel M      voxel-averaging size in metres, 0 to disable (default 0.01)\n"
-    "  --no-crop      do not crop the prediction to the GT bounding box\n"
-    "  --region x0,y0,z0,x1,y1,z1\n"
-    "                 evaluate only inside this box: both meshes are clipped to it first\n"
-    "                 (a point cloud keeps its points inside it)\n"
-    "  --box HX,HY,ZMIN,ZMAX --seq DIR\n"
-    "                 evaluate only inside the union over the frames of the dataset DIR of the\n"
-    "                 boxes |x - sx| < HX, |y - sy| < HY, sz + ZMIN <= z < sz + ZMAX about each\n"
-    "                 sensor position (sx, sy, sz), world axes (rim_sim's --observed-box): both\n"
-    "                 sides' samples and points outside it are left out. With rim_sim's\n"
-    "                 gt_observed.ply from --observed-box none, this scores what a mapper with\n"
-    "                 that local map could have seen, from near or far\n"
-    "  --misses FILE  write CSV x,y,z,distance_m of the GT points (voxel-averaged) farther than\n"
-    "                 10 cm from the prediction: where the map misses surface\n"
-    "  --floaters FILE\n"
-    "                 write the same for the prediction points farther than 20 cm from the GT\n"
+    "                [--box HX,HY,ZMIN,ZMAX --seq DIR] [--misses FILE] [--floaters FILE]";
+constexpr char kFooter[] =
     "A PLY without faces is a point cloud: its vertices are used as they are (voxel-averaged, not\n"
-    "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.\n";
+    "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.";
 
 struct Args {
+  std::vector<std::string> files;  // PRED.ply GT.ply
   std::string pred_path, gt_path;
   bool json = false;
   EvalOptions options;
@@ -76,123 +60,130 @@ struct Args {
   std::string misses_path, floaters_path;  // empty: not written
 };
 
-// Returns false (after printing why) on bad arguments.
-bool ParseArgs(int argc, char** argv, Args* args) {
-  std::vector<std::string> positional;
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i], value;
-    const size_t eq = arg.find('=');
-    const bool has_inline = arg.rfind("--", 0) == 0 && eq != std::string::npos;
-    if (has_inline) {
-      value = arg.substr(eq + 1);
-      arg = arg.substr(0, eq);
-    }
-    auto next_value = [&](std::string* out) {
-      if (has_inline) {
-        *out = value;
-        return true;
-      }
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "rim_eval: %s needs a value\n%s", arg.c_str(), kUsage);
-        return false;
-      }
-      *out = argv[++i];
-      return true;
-    };
-    auto bad_value = [&](const std::string& v) {
-      std::fprintf(stderr, "rim_eval: bad value for %s: '%s'\n%s", arg.c_str(), v.c_str(), kUsage);
-      return false;
-    };
-    std::string v;
-    if (arg == "--help" || arg == "-h") {
-      std::fputs(kUsage, stdout);
-      std::exit(0);
-    } else if (arg == "--json" && !has_inline) {
-      args->json = true;
-    } else if (arg == "--no-crop" && !has_inline) {
-      args->options.crop_to_gt = false;
-    } else if (arg == "--samples") {
-      double d;  // accepts 1e7 as well as 10000000
-      if (!next_value(&v)) return false;
-      if (!absl::SimpleAtod(v, &d) || !(d >= 1 && d <= 1e9) || d != std::floor(d)) {
-        return bad_value(v);
-      }
-      args->options.samples = static_cast<int64_t>(d);
-    } else if (arg == "--threads") {
-      if (!next_value(&v)) return false;
-      if (!absl::SimpleAtoi(v, &args->options.threads) || args->options.threads < 1) {
-        return bad_value(v);
-      }
-    } else if (arg == "--seed") {
-      if (!next_value(&v)) return false;
-      if (!absl::SimpleAtoi(v, &args->options.seed)) return bad_value(v);
-    } else if (arg == "--region") {
-      // Crops both meshes: the part of the world the mapper was asked to reconstruct.
-      if (!next_value(&v)) return false;
-      std::vector<std::string> parts = absl::StrSplit(v, ',');
-      if (parts.size() != 6) return bad_value(v);
-      for (int k = 0; k < 6; ++k) {
-        double d;
-        if (!absl::SimpleAtod(parts[k], &d) || !std::isfinite(d)) return bad_value(v);
-        (k < 3 ? args->region_min : args->region_max)[k % 3] = float(d);
-      }
-      for (int k = 0; k < 3; ++k)
-        if (!(args->region_min[k] < args->region_max[k])) return bad_value(v);
-      args->has_region = true;
-    } else if (arg == "--box") {
-      if (!next_value(&v)) return false;
-      std::vector<std::string> parts = absl::StrSplit(v, ',');
-      if (parts.size() != 4) return bad_value(v);
-      for (int k = 0; k < 4; ++k) {
-        if (!absl::SimpleAtod(parts[k], &args->box[k]) || !std::isfinite(args->box[k])) {
-          return bad_value(v);
-        }
-      }
-      if (!(args->box[0] > 0 && args->box[1] > 0 && args->box[2] < args->box[3])) {
-        std::fprintf(stderr,
-                     "rim_eval: --box HX,HY,ZMIN,ZMAX needs HX > 0, HY > 0 and ZMIN < ZMAX, got "
-                     "'%s'\n%s",
-                     v.c_str(), kUsage);
-        return false;
-      }
-      args->has_box = true;
-    } else if (arg == "--seq") {
-      if (!next_value(&v)) return false;
-      if (v.empty()) return bad_value(v);
-      args->seq_dir = v;
-    } else if (arg == "--misses" || arg == "--floaters") {
-      if (!next_value(&v)) return false;
-      if (v.empty()) return bad_value(v);
-      (arg == "--misses" ? args->misses_path : args->floaters_path) = v;
-      args->options.keep_outliers = true;
-    } else if (arg == "--voxel") {
-      if (!next_value(&v)) return false;
-      if (!absl::SimpleAtod(v, &args->options.voxel_m) || !(args->options.voxel_m >= 0)) {
-        return bad_value(v);
-      }
-    } else if (arg.rfind("-", 0) == 0 && arg != "-") {
-      std::fprintf(stderr, "rim_eval: unknown option %s\n%s", arg.c_str(), kUsage);
-      return false;
-    } else {
-      positional.push_back(arg);
-    }
-  }
-  if (positional.size() != 2) {
-    std::fprintf(stderr, "rim_eval: expected PRED.ply and GT.ply, got %zu file argument(s)\n%s",
-                 positional.size(), kUsage);
-    return false;
+// "bad value for --flag: 'VALUE'".
+rim::cli::Message Bad(std::string flag) {
+  return [flag = std::move(flag)](const std::string& value) {
+    return absl::StrCat("bad value for ", flag, ": '", value, "'");
+  };
+}
+
+// rim_eval's flags (rim/base/flags.h), into ARGS. Every flag keeps its last value when given twice,
+// as rim_eval always did.
+void AddFlags(CLI::App& app, Args* args) {
+  rim::cli::SetHelp(app, kSynopsis, "", 17);
+  app.footer(kFooter);
+  auto last = [](CLI::Option* o) {
+    return o->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  auto path = [](const char* flag) {
+    return rim::cli::Check([](std::string& v) { return !v.empty(); }, Bad(flag));
+  };
+  EvalOptions& o = args->options;
+  app.add_option("FILES", args->files, "PRED.ply GT.ply: the prediction and the ground truth")
+      ->type_name("");
+  app.add_flag("--json", args->json, "print one JSON object instead of the table");
+  last(app.add_option("--samples", o.samples,
+                      "points sampled on each mesh before voxel averaging (default 1e7)")
+           ->type_name("N")
+           ->transform(rim::cli::Check(
+               [](std::string& v) {
+                 double d;  // accepts 1e7 as well as 10000000
+                 if (!absl::SimpleAtod(v, &d) || !(d >= 1 && d <= 1e9) || d != std::floor(d))
+                   return false;
+                 v = std::to_string(static_cast<int64_t>(d));
+                 return true;
+               },
+               Bad("--samples"))));
+  last(app.add_option("--threads", o.threads, "worker threads (default: all cores)")
+           ->type_name("N")
+           ->transform(rim::cli::IntegerIn(1, std::numeric_limits<int>::max(), Bad("--threads"))));
+  last(app.add_option("--seed", o.seed, "sampling seed (default 1)")
+           ->type_name("S")
+           ->transform(rim::cli::IntegerIn<uint64_t>(0, std::numeric_limits<uint64_t>::max(),
+                                                     Bad("--seed"))));
+  last(app.add_option("--voxel", o.voxel_m,
+                      "voxel-averaging size in metres, 0 to disable (default 0.01)")
+           ->type_name("M")
+           ->transform(rim::cli::Check(
+               [](std::string& v) {
+                 double d;
+                 return absl::SimpleAtod(v, &d) && d >= 0;  // ValidateEvalOptions does the rest
+               },
+               Bad("--voxel"))));
+  app.add_flag_callback(
+      "--no-crop", [&o] { o.crop_to_gt = false; },
+      "do not crop the prediction to the GT bounding box");
+  // Crops both meshes: the part of the world the mapper was asked to reconstruct.
+  last(app.add_option_function<std::string>(
+              "--region",
+              [args](const std::string& v) {
+                std::vector<std::string> parts = absl::StrSplit(v, ',');
+                if (parts.size() != 6) throw rim::cli::UsageError(Bad("--region")(v));
+                for (int k = 0; k < 6; ++k) {
+                  double d;
+                  if (!absl::SimpleAtod(parts[k], &d) || !std::isfinite(d))
+                    throw rim::cli::UsageError(Bad("--region")(v));
+                  (k < 3 ? args->region_min : args->region_max)[k % 3] = float(d);
+                }
+                for (int k = 0; k < 3; ++k)
+                  if (!(args->region_min[k] < args->region_max[k]))
+                    throw rim::cli::UsageError(Bad("--region")(v));
+                args->has_region = true;
+              },
+              "evaluate only inside this box: both meshes are clipped to it first\n"
+              "(a point cloud keeps its points inside it)")
+           ->type_name("x0,y0,z0,x1,y1,z1"));
+  last(app.add_option_function<std::string>(
+              "--box",
+              [args](const std::string& v) {
+                std::vector<std::string> parts = absl::StrSplit(v, ',');
+                if (parts.size() != 4) throw rim::cli::UsageError(Bad("--box")(v));
+                for (int k = 0; k < 4; ++k) {
+                  if (!absl::SimpleAtod(parts[k], &args->box[k]) || !std::isfinite(args->box[k]))
+                    throw rim::cli::UsageError(Bad("--box")(v));
+                }
+                if (!(args->box[0] > 0 && args->box[1] > 0 && args->box[2] < args->box[3])) {
+                  throw rim::cli::UsageError(absl::StrCat(
+                      "--box HX,HY,ZMIN,ZMAX needs HX > 0, HY > 0 and ZMIN < ZMAX, got '", v, "'"));
+                }
+                args->has_box = true;
+              },
+              "with --seq DIR: evaluate only inside the union over the frames of the dataset DIR\n"
+              "of the boxes |x - sx| < HX, |y - sy| < HY, sz + ZMIN <= z < sz + ZMAX about each\n"
+              "sensor position (sx, sy, sz), world axes (rim_sim's --observed-box): both\n"
+              "sides' samples and points outside it are left out. With rim_sim's\n"
+              "gt_observed.ply from --observed-box none, this scores what a mapper with\n"
+              "that local map could have seen, from near or far")
+           ->type_name("HX,HY,ZMIN,ZMAX"));
+  last(app.add_option("--seq", args->seq_dir, "the dataset whose sensor positions place --box")
+           ->type_name("DIR")
+           ->transform(path("--seq")));
+  last(app.add_option("--misses", args->misses_path,
+                      "write CSV x,y,z,distance_m of the GT points (voxel-averaged) farther than\n"
+                      "10 cm from the prediction: where the map misses surface")
+           ->type_name("FILE")
+           ->transform(path("--misses")));
+  last(app.add_option("--floaters", args->floaters_path,
+                      "write the same for the prediction points farther than 20 cm from the GT")
+           ->type_name("FILE")
+           ->transform(path("--floaters")));
+}
+
+// Usage errors (after parsing) that name the flag; OK when ARGS are complete.
+absl::Status CheckArgs(Args* args) {
+  if (args->files.size() != 2) {
+    return absl::InvalidArgumentError(absl::StrCat("expected PRED.ply and GT.ply, got ",
+                                                   args->files.size(), " file argument(s)"));
   }
   if (args->has_box != !args->seq_dir.empty()) {
-    std::fprintf(stderr,
-                 args->has_box ? "rim_eval: --box needs --seq DIR, the sequence whose sensor "
-                                 "positions place the boxes\n%s"
-                               : "rim_eval: --seq needs --box HX,HY,ZMIN,ZMAX\n%s",
-                 kUsage);
-    return false;
+    return absl::InvalidArgumentError(
+        args->has_box ? "--box needs --seq DIR, the sequence whose sensor positions place the boxes"
+                      : "--seq needs --box HX,HY,ZMIN,ZMAX");
   }
-  args->pred_path = positional[0];
-  args->gt_path = positional[1];
-  return true;
+  args->options.keep_outliers = !args->misses_path.empty() || !args->floaters_path.empty();
+  args->pred_path = args->files[0];
+  args->gt_path = args->files[1];
+  return absl::OkStatus();
 }
 
 // The union of --box about the sensor positions of --seq's frames.
@@ -346,7 +337,19 @@ absl::Status WriteOutliers(const std::string& path,
 int main(int argc, char** argv) {
   Args args;
   args.options.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  if (!ParseArgs(argc, argv, &args)) return 2;
+  CLI::App app("", "rim_eval");
+  AddFlags(app, &args);
+  absl::Status parsed = rim::cli::Parse(app, argc, argv);
+  if (absl::IsCancelled(parsed)) {
+    std::fputs(app.help().c_str(), stdout);
+    return 0;
+  }
+  if (parsed.ok()) parsed = CheckArgs(&args);
+  if (!parsed.ok()) {
+    std::fprintf(stderr, "rim_eval: %s\n%s", std::string(parsed.message()).c_str(),
+                 app.help().c_str());
+    return 2;
+  }
   if (absl::Status s = rim::eval::ValidateEvalOptions(args.options); !s.ok()) {
     std::fprintf(stderr, "rim_eval: %s\n", std::string(s.message()).c_str());
     return 2;
