@@ -29,6 +29,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "rim/base/binary_io.h"
+#include "rim/base/flags.h"
 #include "rim/base/status_macros.h"
 #include "rim/base/version.h"
 #include "rim/config/config.h"
@@ -52,55 +53,73 @@ struct Args {
   std::string query_points;
 };
 
-constexpr char kUsage[] =
+constexpr char kSynopsis[] =
     "usage: rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]\n"
-    "               [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]\n";
+    "               [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]";
+constexpr char kDescription[] =
+    "Offline mapping of a dataset with the core mapper, no server. Writes DIR/mesh.ply (all\n"
+    "tiles, welded), DIR/timing.json (per-stage mean times, ms/frame, frames/s, peak and\n"
+    "per-frame memory) and DIR/run.json (config and versions), and prints the per-stage table.";
 
-absl::StatusOr<Args> ParseArgs(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto value = [&](const char* name) -> absl::StatusOr<std::string> {
-      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
-      return std::string(argv[++i]);
-    };
-    if (arg == "--preset") {
-      RIM_ASSIGN_OR_RETURN(a.preset, value("--preset"));
-    } else if (arg == "--out") {
-      RIM_ASSIGN_OR_RETURN(a.out, value("--out"));
-    } else if (arg == "--config") {
-      RIM_ASSIGN_OR_RETURN(a.config_file, value("--config"));
-    } else if (arg == "--set") {
-      RIM_ASSIGN_OR_RETURN(std::string kv, value("--set"));
-      a.overrides.push_back(kv);
-    } else if (arg == "--tiles") {
-      a.tiles = true;
-    } else if (arg == "--probe") {
-      RIM_ASSIGN_OR_RETURN(a.probe, value("--probe"));
-      if (a.probe != "metric" && a.probe != "neural")
-        return absl::InvalidArgumentError(
-            absl::StrCat("--probe '", a.probe, "' is not metric or neural"));
-    } else if (arg == "--query-points") {
-      RIM_ASSIGN_OR_RETURN(a.query_points, value("--query-points"));
-    } else if (arg == "--frames") {
-      RIM_ASSIGN_OR_RETURN(std::string range, value("--frames"));
-      std::vector<std::string> parts = absl::StrSplit(range, ':');
-      if (parts.size() != 2 || (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
-          (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
-        return absl::InvalidArgumentError(absl::StrCat("--frames '", range, "' is not A:B"));
-    } else if (arg == "-h" || arg == "--help") {
-      return absl::CancelledError(kUsage);
-    } else if (!arg.empty() && arg[0] == '-') {
-      return absl::InvalidArgumentError(absl::StrCat("unknown option ", arg));
-    } else if (a.dataset.empty()) {
-      a.dataset = arg;
-    } else {
-      return absl::InvalidArgumentError(absl::StrCat("unexpected argument ", arg));
-    }
-  }
+// rim_map's flags (rim/base/flags.h), into A. A flag given twice keeps its last value, as rim_map
+// always did; --set adds one override each time.
+void AddFlags(CLI::App& app, Args& a) {
+  cli::SetHelp(app, kSynopsis, kDescription, 25);
+  auto last = [](CLI::Option* o) {
+    return o->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  app.add_option("DATASET", a.dataset, "the dataset folder, any layout rim::io::Dataset reads")
+      ->type_name("");
+  last(app.add_option("--preset", a.preset,
+                      "the config preset (default maicity; with --config the file's\n"
+                      "preset = X line chooses)")
+           ->type_name("NAME"));
+  last(app.add_option("--out", a.out, "output folder (required)")->type_name("DIR"));
+  last(app.add_option_function<std::string>(
+              "--frames",
+              [&a](const std::string& range) {
+                std::vector<std::string> parts = absl::StrSplit(range, ':');
+                if (parts.size() != 2 ||
+                    (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
+                    (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
+                  throw cli::UsageError(absl::StrCat("--frames '", range, "' is not A:B"));
+              },
+              "frames A to B (B excluded; either may be left out: all by default)")
+           ->type_name("A:B"));
+  app.add_option("--set", a.overrides,
+                 "a config override, applied after the preset or the config file; one per\n"
+                 "--set, repeatable")
+      ->type_name("key=value")
+      ->allow_extra_args(false);  // one value per --set
+  last(app.add_option("--config", a.config_file,
+                      "a config file: key = value lines, # comments, a preset = X line selects\n"
+                      "the base")
+           ->type_name("FILE"));
+  app.add_flag("--tiles", a.tiles, "also write DIR/tiles/*.ply");
+  last(app.add_option("--probe", a.probe,
+                      "score the final map's distances against the dataset's ground truth\n"
+                      "(rim_sim's gt.ply and gt_observed.ply) at free-space points on its rays:\n"
+                      "metric asks QuerySdf, neural the network's own values; writes\n"
+                      "DIR/probe.json")
+           ->type_name("metric|neural")
+           ->transform(cli::Check([](std::string& v) { return v == "metric" || v == "neural"; },
+                                  [](const std::string& v) {
+                                    return absl::StrCat("--probe '", v,
+                                                        "' is not metric or neural");
+                                  })));
+  last(
+      app.add_option("--query-points", a.query_points,
+                     "read CSV x,y,z (header optional) and write DIR/query.csv with the final\n"
+                     "map's answers, x,y,z,sdf,observed,gx,gy,gz,gt_distance: g is the\n"
+                     "distance's gradient, gt_distance the exact distance to the dataset's gt.ply\n"
+                     "(empty when it has none)")
+          ->type_name("FILE"));
+}
+
+absl::Status CheckArgs(const Args& a) {
   if (a.dataset.empty()) return absl::InvalidArgumentError("missing DATASET");
   if (a.out.empty()) return absl::InvalidArgumentError("missing --out DIR");
-  return a;
+  return absl::OkStatus();
 }
 
 double CurrentRssMb() {
@@ -346,17 +365,21 @@ absl::Status Run(const Args& args) {
 }  // namespace rim
 
 int main(int argc, char** argv) {
-  auto args = rim::ParseArgs(argc, argv);
-  if (!args.ok()) {
-    if (absl::IsCancelled(args.status())) {
-      std::fputs(rim::kUsage, stdout);
-      return 0;
-    }
-    std::fprintf(stderr, "rim_map: %s\n%s", std::string(args.status().message()).c_str(),
-                 rim::kUsage);
+  rim::Args args;
+  CLI::App app("", "rim_map");
+  rim::AddFlags(app, args);
+  absl::Status parsed = rim::cli::Parse(app, argc, argv);
+  if (absl::IsCancelled(parsed)) {
+    std::fputs(app.help().c_str(), stdout);
+    return 0;
+  }
+  if (parsed.ok()) parsed = rim::CheckArgs(args);
+  if (!parsed.ok()) {
+    std::fprintf(stderr, "rim_map: %s\n%s", std::string(parsed.message()).c_str(),
+                 app.help().c_str());
     return 2;
   }
-  const absl::Status s = rim::Run(*args);
+  const absl::Status s = rim::Run(args);
   if (!s.ok()) {
     std::fprintf(stderr, "rim_map: %s\n", s.ToString().c_str());
     return 1;
