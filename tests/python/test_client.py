@@ -274,6 +274,56 @@ class ClientTest(unittest.TestCase):
         self.assertGreater(len(near), 0)
         self.assertLessEqual(len(near), len(tiles))
 
+    def test_mesh_tiles_come_in_levels_of_detail(self) -> None:
+        levels = self.session.get().mesh_levels_m
+        # The session's mesh resolution, then twice as coarse each (as far as the grid allows),
+        # as the literals a caller writes (0.1, not 0.10000000149).
+        self.assertGreaterEqual(len(levels), 2, levels)
+        for finer, coarser in zip(levels, levels[1:]):
+            self.assertAlmostEqual(coarser, 2 * finer, places=6)
+        self.assertEqual(levels, tuple(float(f"{level:g}") for level in levels))
+        finest = {t.key: t for t in self.session.mesh_tiles()}
+        self.assertTrue(all(t.resolution_m == levels[0] for t in finest.values()))
+        # Naming the finest level is the same as leaving it out.
+        named = {t.key: t for t in self.session.mesh_tiles(resolution_m=levels[0])}
+        self.assertEqual({k: t.draco for k, t in named.items()},
+                         {k: t.draco for k, t in finest.items()})
+        coarse_level = levels[-1]
+        coarse = {t.key: t for t in self.session.mesh_tiles(resolution_m=coarse_level)}
+        # The same tiles at the same versions, meshed coarser: fewer faces.
+        self.assertEqual({k: t.version for k, t in coarse.items()},
+                         {k: t.version for k, t in finest.items()})
+        self.assertTrue(all(t.resolution_m == coarse_level for t in coarse.values()))
+        self.assertTrue(all(t.draco.startswith(b"DRACO") for t in coarse.values()))
+        self.assertLess(sum(t.face_count for t in coarse.values()),
+                        sum(t.face_count for t in finest.values()))
+        latest = max(t.version for t in coarse.values())
+        self.assertEqual(self.session.mesh_tiles(since=latest, resolution_m=coarse_level), [])
+        # A watch pushes the level it asked for (every tile newer than since=0 comes at once).
+        watch = self.session.watch(since=0, timeout=30, resolution_m=coarse_level)
+        first = next(watch)
+        watch.close()
+        self.assertEqual(first.resolution_m, coarse_level)
+        self.assertEqual(first.draco, coarse[first.key].draco)
+
+        # Anything else is refused by name, by the server (the client only checks it is a number).
+        not_a_level = 1.5 * levels[0]
+        with self.assertRaises(rim_client.RimError) as other:
+            self.session.mesh_tiles(resolution_m=not_a_level)
+        self.assertEqual(other.exception.code, "INVALID_ARGUMENT")
+        self.assertIn("resolution_m", other.exception.message)
+        with self.assertRaises(rim_client.RimError) as negative:
+            self.session.mesh_tiles(resolution_m=-levels[0])
+        self.assertEqual(negative.exception.code, "INVALID_ARGUMENT")
+        with self.assertRaises(rim_client.RimError) as watched:
+            next(self.session.watch(resolution_m=not_a_level, timeout=30))
+        self.assertEqual(watched.exception.code, "INVALID_ARGUMENT")
+        self.assertIn("resolution_m", watched.exception.message)
+        with self.assertRaises(rim_client.RimError) as text:
+            self.session.mesh_tiles(resolution_m="fine")
+        self.assertEqual(text.exception.code, "INVALID_ARGUMENT")
+        self.assertIn("resolution_m", text.exception.message)
+
     def test_errors_carry_status_codes(self) -> None:
         with self.assertRaises(rim_client.RimError) as missing:
             self.client.session("nobody")

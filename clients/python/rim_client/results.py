@@ -17,6 +17,15 @@ def _vec3(v: "rim_pb2.Vec3") -> Vec3:
     return (v.x, v.y, v.z)
 
 
+def _metres(value: float) -> float:
+    """A float32 field as the shortest decimal that is the same float32: 0.2, not 0.2000000030.
+
+    Sent back as a float32 field (resolution_m) it is the same value again, and it compares
+    equal to the literal a caller writes.
+    """
+    return float(str(np.float32(value)))
+
+
 @dataclasses.dataclass(frozen=True)
 class ServerInfo:
     """What a server is and the limits it enforces."""
@@ -69,13 +78,17 @@ class SessionInfo:
     host_memory_bytes: int
     decoder_frozen: bool
     last_loss: float
+    # The levels of detail its mesh tiles come in (cell size, metres), finest first: what
+    # Session.mesh_tiles and Session.watch take as resolution_m.
+    mesh_levels_m: Tuple[float, ...] = ()
 
     @classmethod
     def from_proto(cls, m: "rim_pb2.SessionInfo") -> "SessionInfo":
         return cls(m.robot_id, m.preset, _parse_config(m.config), m.accepted_frames,
                    m.rejected_frames, m.integrated_frames, m.queue_depth, m.iterations_per_frame,
                    m.map_version, m.buffer_points, m.submaps_active, m.submaps_frozen,
-                   m.submaps_on_disk, m.host_memory_bytes, m.decoder_frozen, m.last_loss)
+                   m.submaps_on_disk, m.host_memory_bytes, m.decoder_frozen, m.last_loss,
+                   tuple(_metres(level) for level in m.mesh_levels_m))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,9 +175,12 @@ class MeshTile:
     draco: bytes
     vertex_count: int
     face_count: int
+    # The level of detail it was meshed at (mesh cell size, metres; one of
+    # SessionInfo.mesh_levels_m). Positions are quantised to within max(1 mm, resolution_m / 50).
+    resolution_m: float = 0.0
 
     @classmethod
     def from_proto(cls, m: "rim_pb2.MeshTile") -> "MeshTile":
         return cls((m.key_x, m.key_y, m.key_z), m.version,
                    (_vec3(m.bounds.min), _vec3(m.bounds.max)), bytes(m.draco), m.vertex_count,
-                   m.face_count)
+                   m.face_count, _metres(m.resolution_m))

@@ -210,15 +210,21 @@ class Session:
 
     # -- mesh tiles ------------------------------------------------------------------------------
 
-    def mesh_tiles(self, since: int = 0, region: Any = None) -> List[MeshTile]:
+    def mesh_tiles(self, since: int = 0, region: Any = None,
+                   resolution_m: float = 0.0) -> List[MeshTile]:
         """Every mesh tile whose version is newer than `since`.
 
         Args:
             since: a tile version seen before (0: all tiles). Passing the largest version
                 received so far returns only what changed after it.
             region: ((min x, y, z), (max x, y, z)): only tiles whose bounds intersect it.
+            resolution_m: the level of detail, one of the session's levels
+                (SessionInfo.mesh_levels_m, finest first, e.g. 0.05, 0.1, 0.2, 0.4); 0: the
+                finest. Another value is RimError INVALID_ARGUMENT naming resolution_m. A tile's
+                version means the same at every level.
         """
-        request = rim_pb2.GetMeshTilesRequest(robot_id=self.robot_id, since_version=int(since))
+        request = rim_pb2.GetMeshTilesRequest(robot_id=self.robot_id, since_version=int(since),
+                                              resolution_m=_resolution(resolution_m))
         if region is not None:
             request.region.CopyFrom(box_to_proto(region))
         try:
@@ -229,7 +235,8 @@ class Session:
         except grpc.RpcError as error:
             raise RimError.from_rpc(error) from None
 
-    def watch(self, since: int = 0, timeout: Optional[float] = None) -> Iterator[MeshTile]:
+    def watch(self, since: int = 0, timeout: Optional[float] = None,
+              resolution_m: float = 0.0) -> Iterator[MeshTile]:
         """Yields tiles as training changes them, until the session closes.
 
         Leaving the loop (break, or closing the generator) cancels the watch on the server.
@@ -237,8 +244,12 @@ class Session:
         Args:
             since: only tiles newer than this version.
             timeout: deadline of the watch in seconds (RimError DEADLINE_EXCEEDED); None: none.
+            resolution_m: the level of detail the watch pushes, as in mesh_tiles (0: the
+                finest). A level that is not the session's raises RimError INVALID_ARGUMENT,
+                naming resolution_m, when the loop starts.
         """
-        request = rim_pb2.WatchMeshTilesRequest(robot_id=self.robot_id, since_version=int(since))
+        request = rim_pb2.WatchMeshTilesRequest(robot_id=self.robot_id, since_version=int(since),
+                                                resolution_m=_resolution(resolution_m))
         call = self._client._stub.WatchMeshTiles(
             request, timeout=timeout, metadata=self._client._metadata(self.robot_id))
         try:
@@ -248,6 +259,19 @@ class Session:
             raise RimError.from_rpc(error) from None
         finally:
             call.cancel()  # a no-op when the server already ended the stream
+
+
+def _resolution(resolution_m: Any) -> float:
+    """A level of detail as the float resolution_m field takes it.
+
+    Only what is not a number is refused here: the server checks that it is one of the session's
+    levels, and its INVALID_ARGUMENT names resolution_m and the levels.
+    """
+    try:
+        return float(resolution_m)
+    except (TypeError, ValueError):
+        raise invalid_argument(f"resolution_m: expected a number of metres, got "
+                               f"{resolution_m!r}") from None
 
 
 def _tally(summary: StreamSummary, ack: Ack) -> None:
