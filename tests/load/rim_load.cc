@@ -66,6 +66,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <mutex>
 #include <random>
 #include <string>
@@ -74,6 +75,7 @@
 
 #include "client/client.h"
 #include "client/wire.h"
+#include "rim/base/flags.h"
 #include "rim/io/json.h"
 #include "sim/city_frames.h"
 
@@ -84,8 +86,8 @@ struct Options {
   int robots = 2, planners = 2, dashboards = 1, batch = 10000;
   int frames = 0;  // 0: rate x duration, at most 600
   double rate_hz = 10, duration_s = 60;
-  double query_rate_hz = 0;  // batches per second per planner; 0: back to back
-  double baseline_s = 0;     // the robots alone for this long first; 0: no baseline phase
+  double query_rate_hz = 0;      // batches per second per planner; 0: back to back
+  double baseline_s = 0;         // the robots alone for this long first; 0: no baseline phase
   double tile_resolution_m = 0;  // the dashboards' level of detail; 0: the finest
   std::vector<std::pair<std::string, std::string>> overrides;  // --set key=value
   std::string json_path;                                       // --json FILE; empty: none
@@ -96,45 +98,88 @@ bool Loopback(const std::string& address) {
          address.rfind("[::1]:", 0) == 0;
 }
 
-bool Parse(int argc, char** argv, Options* o) {
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
-    if (k == "--server")
-      o->server = v;
-    else if (k == "--robots")
-      o->robots = std::atoi(v.c_str());
-    else if (k == "--planners")
-      o->planners = std::atoi(v.c_str());
-    else if (k == "--dashboards")
-      o->dashboards = std::atoi(v.c_str());
-    else if (k == "--rate")
-      o->rate_hz = std::atof(v.c_str());
-    else if (k == "--duration")
-      o->duration_s = std::atof(v.c_str());
-    else if (k == "--batch")
-      o->batch = std::atoi(v.c_str());
-    else if (k == "--frames")
-      o->frames = std::atoi(v.c_str());
-    else if (k == "--query-rate")
-      o->query_rate_hz = std::atof(v.c_str());
-    else if (k == "--baseline")
-      o->baseline_s = std::atof(v.c_str());
-    else if (k == "--tile-resolution")
-      o->tile_resolution_m = std::atof(v.c_str());
-    else if (k == "--json" && !v.empty())
-      o->json_path = v;
-    else if (k == "--set" && v.find('=') != std::string::npos && v.find('=') > 0)
-      o->overrides.emplace_back(v.substr(0, v.find('=')), v.substr(v.find('=') + 1));
-    else
-      return false;
-  }
-  return (argc % 2) == 1 && !o->server.empty() && o->robots >= 0 && o->robots <= 16 &&
-         o->planners >= 0 && o->planners <= 16 && o->dashboards >= 0 && o->dashboards <= 16 &&
-         o->rate_hz > 0 && o->duration_s > 0 && o->duration_s <= 3600 && o->batch > 0 &&
-         o->batch <= 1000000 && o->frames >= 0 && o->frames <= 1000 &&
-         std::isfinite(o->query_rate_hz) && o->query_rate_hz >= 0 && o->query_rate_hz <= 1000 &&
-         std::isfinite(o->baseline_s) && o->baseline_s >= 0 && o->baseline_s <= 3600 &&
-         std::isfinite(o->tile_resolution_m) && o->tile_resolution_m >= 0;
+constexpr char kSynopsis[] =
+    "usage: rim_load --server 127.0.0.1:PORT [--robots 2] [--planners 2] [--dashboards 1]\n"
+    "                [--rate 10] [--duration 60] [--batch 10000] [--frames F] [--query-rate 0]\n"
+    "                [--baseline S] [--set key=value ...] [--json FILE] [--tile-resolution M]";
+
+// "--robots must be WANT, got 'VALUE'".
+rim::cli::Message Must(std::string flag, std::string want) {
+  return [flag = std::move(flag), want = std::move(want)](const std::string& value) {
+    return flag + " must be " + want + ", got '" + value + "'";
+  };
+}
+
+// rim_load's flags (rim/base/flags.h), into O. A flag given twice keeps its last value, as
+// rim_load always did; --set adds one override each time.
+void AddFlags(CLI::App& app, Options* o) {
+  rim::cli::SetHelp(app, kSynopsis,
+                    "A bounded load generator for a rim_server on this machine (loopback only):\n"
+                    "robots stream synthetic-city scans, planners query, dashboards watch tiles,\n"
+                    "for a fixed duration; then it prints what the server sustained.",
+                    23);
+  auto last = [](CLI::Option* opt) {
+    return opt->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  };
+  auto count = [&](const char* flag, int* out, int lo, int hi, const char* description) {
+    const std::string want =
+        "an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    return last(app.add_option(flag, *out, description)
+                    ->transform(rim::cli::IntegerIn(lo, hi, Must(flag, want))));
+  };
+  auto number = [&](const char* flag, double* out, double lo, double hi, bool lo_inclusive,
+                    const char* want, const char* description) {
+    return last(app.add_option(flag, *out, description)
+                    ->transform(rim::cli::NumberIn(lo, hi, lo_inclusive, Must(flag, want))));
+  };
+  const double kHuge = std::numeric_limits<double>::max();
+  last(app.add_option("--server", o->server, "the server's address, loopback only (required)")
+           ->type_name("ADDR"));
+  count("--robots", &o->robots, 0, 16, "robots streaming scans (default 2)")->type_name("N");
+  count("--planners", &o->planners, 0, 16, "planners sending query batches (default 2)")
+      ->type_name("M");
+  count("--dashboards", &o->dashboards, 0, 16, "dashboards watching mesh tiles (default 1)")
+      ->type_name("K");
+  number("--rate", &o->rate_hz, 0, kHuge, false, "a rate > 0 Hz",
+         "each robot's scan rate in Hz (default 10)")
+      ->type_name("HZ");
+  number("--duration", &o->duration_s, 0, 3600, false, "in (0, 3600] s",
+         "how long the load runs, in seconds (default 60)")
+      ->type_name("S");
+  count("--batch", &o->batch, 1, 1000000, "points per query batch (default 10000)")
+      ->type_name("POINTS");
+  count("--frames", &o->frames, 0, 1000,
+        "city frames cast before the run (default 0: enough for the whole run at\n"
+        "--rate, at most 600); a robot at the last one drives back")
+      ->type_name("F");
+  number("--query-rate", &o->query_rate_hz, 0, 1000, true, "in [0, 1000] Hz",
+         "query batches per second per planner (default 0: back to back)")
+      ->type_name("HZ");
+  number("--baseline", &o->baseline_s, 0, 3600, true, "in [0, 3600] s",
+         "first run the robots alone for S seconds on sessions of their own, then\n"
+         "the load, and end with what the load left each robot of its training")
+      ->type_name("S");
+  app.add_option_function<std::vector<std::string>>(
+         "--set",
+         [o](const std::vector<std::string>& sets) {
+           for (const std::string& v : sets)
+             o->overrides.emplace_back(v.substr(0, v.find('=')), v.substr(v.find('=') + 1));
+         },
+         "override a config value of the robots' maicity sessions (as rimctl session\n"
+         "create --set); repeatable")
+      ->type_name("key=value")
+      ->allow_extra_args(false)  // one value per --set
+      ->transform(rim::cli::Check(
+          [](std::string& v) { return v.find('=') != std::string::npos && v.find('=') > 0; },
+          Must("--set", "key=value")));
+  last(app.add_option("--json", o->json_path, "also write the summary's numbers to FILE as JSON")
+           ->type_name("FILE")
+           ->transform(rim::cli::Check([](std::string& v) { return !v.empty(); },
+                                       Must("--json", "a file path"))));
+  number("--tile-resolution", &o->tile_resolution_m, 0, kHuge, true, "a size >= 0 m",
+         "the dashboards watch the tiles at this level of detail in metres (one of\n"
+         "the sessions' mesh_levels_m; default 0, the finest)")
+      ->type_name("M");
 }
 
 double Quantile(std::vector<double> v, double q) {
@@ -370,12 +415,18 @@ Phase RunPhase(rim::Client& client, const Options& o, const std::vector<rim::Pos
 
 int main(int argc, char** argv) {
   Options o;
-  if (!Parse(argc, argv, &o)) {
-    std::fprintf(stderr,
-                 "usage: rim_load --server 127.0.0.1:PORT [--robots N<=16] [--planners M<=16] "
-                 "[--dashboards K<=16] [--rate HZ] [--duration S<=3600] [--batch POINTS] "
-                 "[--frames F] [--query-rate HZ<=1000, 0 = back to back] [--baseline S<=3600] "
-                 "[--set key=value ...] [--json FILE] [--tile-resolution M, 0 = finest]\n");
+  CLI::App app("", "rim_load");
+  AddFlags(app, &o);
+  absl::Status parsed = rim::cli::Parse(app, argc, argv);
+  if (absl::IsCancelled(parsed)) {
+    std::fputs(app.help().c_str(), stdout);
+    return 0;
+  }
+  if (parsed.ok() && o.server.empty())
+    parsed = absl::InvalidArgumentError("--server ADDR is required");
+  if (!parsed.ok()) {
+    std::fprintf(stderr, "rim_load: %s\n%s", std::string(parsed.message()).c_str(),
+                 app.help().c_str());
     return 2;
   }
   if (!Loopback(o.server)) {
