@@ -197,8 +197,8 @@ class Mapper {
   // ExtractMeshTile's mesh (same vertices and faces, possibly in another order).
   absl::StatusOr<Mesh> MeshTile(const Int3& key, MeshUpdateStats* stats = nullptr) const;
   // The same at a level of detail, one of MeshLevels() (0: mesh.resolution_m); each level has its
-  // own block cache, and a tolerance of mesh.remesh_tolerance_m scaled by the level's resolution
-  // over mesh.resolution_m. Any other resolution is InvalidArgument naming resolution_m.
+  // own block cache, with the tolerance mesh.remesh_tolerance_m. Any other resolution is
+  // InvalidArgument naming resolution_m.
   absl::StatusOr<Mesh> MeshTile(const Int3& key, float resolution_m, MeshUpdateStats* stats) const;
   // The levels of detail tiles are meshed at: mesh.resolution_m, then twice as coarse each, up to
   // eight times, as far as the mesh grid allows (mesh/mesher.h, MeshGridOf). Finest first.

@@ -128,7 +128,7 @@ absl::StatusOr<Mesh> Mapper::MeshTile(const Int3& key, float resolution_m,
       cache = mesh_level_caches_.back().second.get();
     }
   }
-  const float tolerance = config_.mesh.remesh_tolerance_m * (*level / config_.mesh.resolution_m);
+  const float tolerance = config_.mesh.remesh_tolerance_m;
   saver_->Flush();
   bool keep = false;
   {

@@ -274,71 +274,75 @@ TEST_F(MeshCacheTest, LevelsOfDetailMeshTheSameSurfaceWithinTheirResolution) {
 
 // With a tolerance, a watched tile is meshed from values within the tolerance of the map's, so
 // its surface stays within about that distance of the from-scratch tile's.
+// The same at a coarse level of detail (0.2 m), whose tolerance scales with its resolution.
 TEST_F(MeshCacheTest, WatchedTilesStayWithinTheToleranceOfFromScratchTiles) {
-  constexpr float kTolerance = 0.005f;
-  std::unique_ptr<Mapper> mapper = MakeMapper(kTolerance);
-  ASSERT_NE(mapper, nullptr);
-  const double res = mapper->config().mesh.resolution_m;
-  uint64_t since = 0;
-  int64_t checked = 0, skipped = 0;
-  std::vector<double> distances;
-  size_t strays = 0, missing = 0;
-  double stray_sdf = 0;
-  std::map<std::array<int, 3>, Mesh> watched;
-  for (size_t k = 0; k < frames_->size(); ++k) {
-    ASSERT_TRUE(mapper->IntegrateScan(frames_->Frame(k)).ok());
-    for (const TileInfo& tile : mapper->ListTiles(since)) {
-      MeshUpdateStats stats;
-      auto mesh = mapper->MeshTile(tile.key, &stats);
-      ASSERT_TRUE(mesh.ok()) << mesh.status();
-      since = std::max(since, tile.version);
-      checked += stats.blocks_checked;
-      skipped += stats.blocks_skipped;
-      watched[{tile.key.x(), tile.key.y(), tile.key.z()}] = std::move(*mesh);
-    }
-    if (k < 5 || k % 4 != 3) continue;
-    for (const TileInfo& tile : mapper->ListTiles(0)) {
-      auto scratch = mapper->ExtractMeshTile(tile.key);
-      ASSERT_TRUE(scratch.ok());
-      const Mesh& cached = watched.at({tile.key.x(), tile.key.y(), tile.key.z()});
-      // Both ways: no vertex strays, and no part of the surface is missing. A vertex with no
-      // counterpart within the mesh voxel belongs to a speck of surface that one mesh has and
-      // the other lacks: where the map's SDF is within the tolerance of zero, so that a value
-      // within the tolerance gives it or takes it away. The map's value there says so.
-      const std::vector<double> there = NearestVertexDistances(cached, *scratch, res);
-      std::vector<float> stray;
-      for (size_t i = 0; i < there.size(); ++i) {
-        distances.push_back(there[i]);
-        if (!(there[i] <= res))
-          stray.insert(stray.end(), cached.vertices[i].begin(), cached.vertices[i].end());
+  for (const float level : {0.f, 0.2f}) {
+    std::unique_ptr<Mapper> mapper = MakeMapper(0.005f);
+    ASSERT_NE(mapper, nullptr);
+    const double res = level > 0 ? level : mapper->config().mesh.resolution_m;
+    const float kTolerance = 0.005f;
+    uint64_t since = 0;
+    int64_t checked = 0, skipped = 0;
+    std::vector<double> distances;
+    size_t strays = 0, missing = 0;
+    double stray_sdf = 0;
+    std::map<std::array<int, 3>, Mesh> watched;
+    for (size_t k = 0; k < frames_->size(); ++k) {
+      ASSERT_TRUE(mapper->IntegrateScan(frames_->Frame(k)).ok());
+      for (const TileInfo& tile : mapper->ListTiles(since)) {
+        MeshUpdateStats stats;
+        auto mesh = mapper->MeshTile(tile.key, level, &stats);
+        ASSERT_TRUE(mesh.ok()) << mesh.status();
+        since = std::max(since, tile.version);
+        checked += stats.blocks_checked;
+        skipped += stats.blocks_skipped;
+        watched[{tile.key.x(), tile.key.y(), tile.key.z()}] = std::move(*mesh);
       }
-      for (double d : NearestVertexDistances(*scratch, cached, res)) {
-        distances.push_back(d);
-        missing += !(d <= res);
+      if (k < 5 || k % 4 != 3) continue;
+      for (const TileInfo& tile : mapper->ListTiles(0)) {
+        auto scratch = mapper->ExtractMeshTile(tile.key, level);
+        ASSERT_TRUE(scratch.ok());
+        const Mesh& cached = watched.at({tile.key.x(), tile.key.y(), tile.key.z()});
+        // Both ways: no vertex strays, and no part of the surface is missing. A vertex with no
+        // counterpart within the mesh voxel belongs to a speck of surface that one mesh has and
+        // the other lacks: where the map's SDF is within the tolerance of zero, so that a value
+        // within the tolerance gives it or takes it away. The map's value there says so.
+        const std::vector<double> there = NearestVertexDistances(cached, *scratch, res);
+        std::vector<float> stray;
+        for (size_t i = 0; i < there.size(); ++i) {
+          distances.push_back(there[i]);
+          if (!(there[i] <= res))
+            stray.insert(stray.end(), cached.vertices[i].begin(), cached.vertices[i].end());
+        }
+        for (double d : NearestVertexDistances(*scratch, cached, res)) {
+          distances.push_back(d);
+          missing += !(d <= res);
+        }
+        if (stray.empty()) continue;
+        QueryResult q;
+        ASSERT_TRUE(mapper->QueryNeural(stray.data(), stray.size() / 3, false, &q).ok());
+        for (float v : q.sdf) stray_sdf = std::max(stray_sdf, double(std::abs(v)));
+        strays += q.sdf.size();
       }
-      if (stray.empty()) continue;
-      QueryResult q;
-      ASSERT_TRUE(mapper->QueryNeural(stray.data(), stray.size() / 3, false, &q).ok());
-      for (float v : q.sdf) stray_sdf = std::max(stray_sdf, double(std::abs(v)));
-      strays += q.sdf.size();
     }
+    ASSERT_GT(checked, 0);
+    EXPECT_GT(skipped, 0);
+    ASSERT_FALSE(distances.empty());
+    std::sort(distances.begin(), distances.end());
+    const double p99 = distances[distances.size() * 99 / 100];
+    const double p999 = distances[distances.size() * 999 / 1000];
+    std::printf(
+        "level %.2f m: blocks skipped: %lld of %lld checked; vertex to the other mesh's nearest: "
+        "p99 %.4f, "
+        "p99.9 %.4f m over %zu vertices; farther than the mesh voxel: %zu watched (|SDF| <= %.4f "
+        "m there), %zu from scratch\n",
+        res, (long long)skipped, (long long)checked, p99, p999, distances.size(), strays, stray_sdf,
+        missing);
+    EXPECT_LE(p99, kTolerance);
+    EXPECT_LE(p999, 2 * kTolerance);
+    EXPECT_LE(strays + missing, distances.size() / 10000);
+    EXPECT_LE(stray_sdf, 2 * kTolerance);
   }
-  ASSERT_GT(checked, 0);
-  EXPECT_GT(skipped, 0);
-  ASSERT_FALSE(distances.empty());
-  std::sort(distances.begin(), distances.end());
-  const double p99 = distances[distances.size() * 99 / 100];
-  const double p999 = distances[distances.size() * 999 / 1000];
-  std::printf(
-      "blocks skipped: %lld of %lld checked; vertex to the other mesh's nearest: p99 %.4f, "
-      "p99.9 %.4f m over %zu vertices; farther than the mesh voxel: %zu watched (|SDF| <= %.4f "
-      "m there), %zu from scratch\n",
-      (long long)skipped, (long long)checked, p99, p999, distances.size(), strays, stray_sdf,
-      missing);
-  EXPECT_LE(p99, kTolerance);
-  EXPECT_LE(p999, 2 * kTolerance);
-  EXPECT_LE(strays + missing, distances.size() / 10000);
-  EXPECT_LE(stray_sdf, 2 * kTolerance);
 }
 
 // A training step re-meshes exactly the blocks whose SDF at the mesh grid moved by more than the

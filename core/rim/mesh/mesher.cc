@@ -23,8 +23,9 @@ struct MeshBlockCache::Piece {
   std::vector<std::array<uint32_t, 3>> faces;
   // Vertices on the block's faces, which cells of a neighbouring block can share, with their edges.
   std::vector<std::pair<uint32_t, GridEdge>> shared;
-  // What the mesh was made from: a hash of the block's observed voxels (which fix its grid points
-  // and their order) and the SDF at those points. Empty values: not kept (tolerance 0).
+  // What the mesh was made from: a hash of the block's layout (BlockGrid::layout_hash: its observed
+  // voxels, or coarse cells, which fix its grid points and their order) and the SDF at those
+  // points. Empty values: not kept (tolerance 0).
   uint64_t voxels_hash = 0;
   std::vector<float> values;
 
@@ -275,6 +276,7 @@ class BlockGrid {
       CoarseCells(spec.s, voxels);
     } else {
       FineCells(r, voxel0, voxels);
+      layout_hash_ = HashVoxels(voxels);
     }
     if (points_.empty()) return;
     const int F = src.geometry.encoding_dim();
@@ -291,6 +293,10 @@ class BlockGrid {
   BlockGrid& operator=(const BlockGrid&) = delete;
 
   const std::vector<float>& values() const { return values_; }
+  // Names the cells meshed and the order of their grid points: the observed voxels' hash at the
+  // fine grid, the meshed coarse cells' above the leaf (a voxel that changes no coarse cell leaves
+  // the block's values comparable).
+  uint64_t layout_hash() const { return layout_hash_; }
 
   // Marching cubes over the cells. `keep_values`: the piece keeps the values it is made from.
   std::shared_ptr<Piece> March(double step, bool keep_values) {
@@ -364,8 +370,9 @@ class BlockGrid {
     std::vector<Int3> cells;
     for (const auto& [c, k] : count)
       if (k >= need) cells.push_back(c);
-    // In key order: the grid points' order follows the voxels alone.
+    // In key order: the grid points' order follows the cells alone.
     std::sort(cells.begin(), cells.end(), KeyLess);
+    layout_hash_ = HashVoxels(cells);
     cells_.reserve(cells.size());
     for (const Int3& c : cells) {
       cells_.push_back(c);
@@ -377,6 +384,7 @@ class BlockGrid {
   }
 
   const int n_;  // grid points per block edge
+  uint64_t layout_hash_ = 0;
   const Int3 point0_;
   BlockScratch& scratch_;
   std::vector<Int3> cells_, points_;
@@ -474,11 +482,11 @@ absl::StatusOr<Mesh> MeshTileBlocks(
         old = it->second;
       }
     }
-    const uint64_t hash = keep_values ? HashVoxels(block_voxels) : 0;
     std::shared_lock lock(src.mutex);
     FeatureReader reader(src.local_map, src.store);
     BlockGrid grid(src, *spec, block, block_voxels, reader, scratch);
     lock.unlock();
+    const uint64_t hash = keep_values ? grid.layout_hash() : 0;
     if (old && !old->values.empty() && old->voxels_hash == hash) {
       ++s.blocks_checked;
       if (WithinTolerance(old->values, grid.values(), tolerance)) {
