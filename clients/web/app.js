@@ -6,6 +6,10 @@
 // bytes (Draco) are fetched, at most MAX_TILE_FETCHES at a time, only for tiles whose version
 // moved, and decoded in DRACOLoader's workers.
 //
+// Tiles come in levels of detail (each session's `mesh_levels_m`); the page shows one level, by
+// default the one nearest DEFAULT_LEVEL_M, or the one nearest `?resolution_m=R` in the URL, and
+// the level select switches it (every session's tiles are dropped and listed again from since=0).
+//
 // The state is published as window.rimDashboard for tests and benchmarks (see publish()).
 // A token given as #token=... in the URL is sent as `Authorization: Bearer ...`.
 import { DRACOLoader } from 'three/addons/loaders/DRACOLoader.js';
@@ -23,6 +27,9 @@ const MAX_ERRORS = 200;  // distinct messages kept; repeats are counted
 const MAX_QUIET_RETRIES = 5;
 const AUTO_FIT_MS = 250; // while the first tiles load, the view is refit at most this often
 const DECODER_DIR = new URL('vendor/three/addons/libs/draco/', document.baseURI).href;
+// The level of detail asked for by default (metres): the level nearest it that the sessions offer.
+// A coarse level loads and draws several times faster than the finest (docs/service.md).
+const DEFAULT_LEVEL_M = 0.2;
 
 // A failed request: status is the HTTP status, or 0 when none came (network error, timeout).
 class FetchError extends Error {
@@ -44,6 +51,9 @@ class SessionModel {
     this.trajectoryPoints = 0;
     this.removed = false;     // gone from the list (or restarted): late results are dropped
     this.deferred = [];       // 404 errors, recorded only if the session is still listed
+    this.levels = [];         // its levels of detail (metres), finest first, as the entry lists
+    this.level = null;        // the level its tiles are listed at; null: none listed (the finest)
+    this.generation = 0;      // bumped when its tiles are dropped: late listings are ignored
   }
 }
 
@@ -61,12 +71,45 @@ class TileModel {
     this.vertices = 0;
     this.queued = false;
     this.busy = false;
+    this.dropped = false;    // its session switched level: late bytes are not shown
   }
 
   get wanted() {
-    return !this.session.removed && this.shownVersion < this.version
+    return !this.session.removed && !this.dropped && this.shownVersion < this.version
       && this.failedVersion < this.version;
   }
+}
+
+// ---- Levels of detail --------------------------------------------------------------------------
+
+// A level as the page names it: the server's float32 metres to the shortest decimal (0.2, not
+// 0.20000000298023224), so that equal levels of different sessions compare equal.
+function levelValue(x) {
+  return Number(Number(x).toPrecision(6));
+}
+
+// The level of `levels` nearest `want` (metres; 0: the finest); ties go to the finer one.
+// null when there are none.
+function nearestLevel(levels, want) {
+  if (levels.length === 0) return null;
+  const sorted = [...levels].sort((a, b) => a - b);
+  if (!(want > 0)) return sorted[0];
+  let best = sorted[0];
+  for (const l of sorted) if (Math.abs(l - want) < Math.abs(best - want)) best = l;
+  return best;
+}
+
+// The `resolution_m` of the page's URL query (?resolution_m=0.05): a number >= 0, or null when
+// absent or not one (then the default applies).
+function urlLevel() {
+  const text = new URLSearchParams(location.search).get('resolution_m');
+  if (text === null || text.trim() === '') return null;
+  const value = Number(text);
+  if (!Number.isFinite(value) || value < 0) {
+    console.warn(`rim dashboard: ignoring resolution_m=${text} in the URL (not metres >= 0)`);
+    return null;
+  }
+  return value;
 }
 
 const state = {
@@ -78,6 +121,12 @@ const state = {
   okPolls: 0,            // rounds whose sessions list came back
   serverVersion: null,
   token: null,
+  // The level asked for (metres; 0: the finest): the URL's resolution_m, DEFAULT_LEVEL_M, or the
+  // user's choice in the level select. The page shows the offered level nearest it (state.level).
+  wantLevel: urlLevel() ?? DEFAULT_LEVEL_M,
+  levels: [],            // every level some session offers, finest first
+  level: null,           // the level shown: nearest wantLevel among `levels`
+  levelSwitches: 0,      // times the shown level changed after the first
 };
 const sessions = new Map();  // robot id -> SessionModel, in the server's order
 const tileQueue = [];
@@ -140,7 +189,7 @@ function status() {
 // Per-session counts, from the tiles' states.
 function sessionView(s) {
   const v = {
-    entry: s.entry, mapVersion: s.mapVersion, tilesListed: s.tiles.size,
+    entry: s.entry, mapVersion: s.mapVersion, tilesListed: s.tiles.size, level: s.level,
     tilesLoaded: 0, pending: 0, failed: 0, faces: 0, vertices: 0,
   };
   for (const t of s.tiles.values()) {
@@ -155,10 +204,13 @@ function sessionView(s) {
   return v;
 }
 
-// window.rimDashboard: { status, errors, polls, retried_polls, sessions: { ROBOT: { tiles_loaded, faces,
-// vertices, pending, failed, map_version, trajectory_points } }, frame_ms: { median, p95 },
-// heap_bytes, color_mode, server_version, gpu: { renderer, antialias, geometries, draw_calls,
-// triangles (the last frame's) } }. Replaced (not mutated) on every poll and tile load.
+// window.rimDashboard: { status, errors, polls, retried_polls, resolution_m, mesh_levels_m,
+// level_switches, sessions: { ROBOT: { tiles_loaded, faces, vertices, pending, failed,
+// map_version, trajectory_points, resolution_m } }, frame_ms: { median, p95 }, heap_bytes,
+// color_mode, server_version, gpu: { renderer, antialias, geometries, draw_calls, triangles (the
+// last frame's) } }. resolution_m: the level shown (null until a session lists its levels); a
+// session's own resolution_m is the level its tiles are listed at (its level nearest the page's).
+// Replaced (not mutated) on every poll and tile load.
 function publish() {
   const out = {};
   for (const s of sessions.values()) {
@@ -166,6 +218,7 @@ function publish() {
     out[s.robot] = {
       tiles_loaded: v.tilesLoaded, faces: v.faces, vertices: v.vertices, pending: v.pending,
       failed: v.failed, map_version: s.mapVersion, trajectory_points: s.trajectoryPoints,
+      resolution_m: s.level,
     };
   }
   window.rimDashboard = {
@@ -173,6 +226,9 @@ function publish() {
     errors: state.errors.slice(),
     polls: state.polls,
     retried_polls: state.retriedPolls,
+    resolution_m: state.level,
+    mesh_levels_m: state.levels.slice(),
+    level_switches: state.levelSwitches,
     sessions: out,
     frame_ms: viewer ? viewer.frameStats() : { median: null, p95: null },
     heap_bytes: performance.memory ? performance.memory.usedJSHeapSize : null,
@@ -261,7 +317,12 @@ function noteAccess(error) {
 
 // ---- Polling -----------------------------------------------------------------------------------
 
+let pollTimer = null;
+let polling = false;
+
 async function pollLoop() {
+  pollTimer = null;
+  polling = true;
   const started = performance.now();
   try {
     await pollRound();
@@ -269,9 +330,17 @@ async function pollLoop() {
     recordError(`poll failed: ${e.message}`);  // a bug, not a failed request
     console.error(e);
   }
+  polling = false;
   state.polls++;
   publish();
-  setTimeout(pollLoop, Math.max(0, POLL_INTERVAL_MS - (performance.now() - started)));
+  pollTimer = setTimeout(pollLoop, Math.max(0, POLL_INTERVAL_MS - (performance.now() - started)));
+}
+
+// Starts the next round now, unless one is under way (then the one after it comes as usual).
+function pollNow() {
+  if (polling || pollTimer === null) return;
+  clearTimeout(pollTimer);
+  pollLoop();
 }
 
 async function pollRound() {
@@ -314,6 +383,50 @@ function reconcile(entries) {
   }
   sessions.clear();
   for (const [robot, s] of ordered) sessions.set(robot, s);
+  for (const s of sessions.values()) {
+    s.levels = (s.entry.mesh_levels_m || []).map(levelValue).filter((l) => l > 0);
+  }
+  applyLevel();
+}
+
+// Picks the level shown from what the sessions offer and state.wantLevel, and moves every
+// session whose level changes to it: its tiles are dropped and listed again from since=0.
+function applyLevel() {
+  const offered = new Set();
+  for (const s of sessions.values()) for (const l of s.levels) offered.add(l);
+  state.levels = [...offered].sort((a, b) => a - b);
+  const level = nearestLevel(state.levels, state.wantLevel);
+  if (level !== state.level && state.level !== null && level !== null) state.levelSwitches++;
+  state.level = level;
+  panel.setLevels(state.levels, state.level);
+  for (const s of sessions.values()) {
+    // A session that lacks the page's level shows its own nearest one.
+    const own = s.levels.includes(state.level) ? state.level : nearestLevel(s.levels, state.level);
+    if (own !== s.level) setSessionLevel(s, own);
+  }
+}
+
+function setSessionLevel(s, level) {
+  s.level = level;
+  s.generation++;
+  for (const t of s.tiles.values()) t.dropped = true;
+  s.tiles = new Map();
+  s.since = 0;
+  viewer?.clearTiles(s.robot);
+  panelDirty = true;
+}
+
+// The user picked a level (metres) in the select: shown at once, listed at the next poll.
+function chooseLevel(value) {
+  if (!(value >= 0)) return;
+  state.wantLevel = value;
+  // The URL names the level, so that the page can be linked to as it is now (the #token stays).
+  const params = new URLSearchParams(location.search);
+  params.set('resolution_m', String(value));
+  history.replaceState(null, '', `${location.pathname}?${params}${location.hash}`);
+  applyLevel();
+  publish();
+  pollNow();
 }
 
 function dropSession(s) {
@@ -323,15 +436,19 @@ function dropSession(s) {
 }
 
 async function pollTiles(s) {
+  const generation = s.generation;
+  const level = s.level === null ? '' : `&resolution_m=${s.level}`;
   let body;
   try {
-    body = await apiJson(`${API}/${encodeURIComponent(s.robot)}/tiles?since=${s.since}`);
+    body = await apiJson(`${API}/${encodeURIComponent(s.robot)}/tiles?since=${s.since}${level}`);
   } catch (e) {
-    sessionError(s, 'tiles', `${s.robot}: tile list since version ${s.since}`, e);
+    if (generation !== s.generation) return;  // asked for a level no longer shown
+    sessionError(s, 'tiles', `${s.robot}: tile list since version ${s.since}`
+      + (s.level === null ? '' : ` at ${s.level} m`), e);
     return;
   }
   pollSucceeded(`tiles ${s.robot}`);
-  if (s.removed) return;
+  if (s.removed || generation !== s.generation) return;
   s.mapVersion = Math.max(s.mapVersion, body.map_version || 0);
   for (const info of body.tiles || []) {
     const id = info.key.join(',');
@@ -419,13 +536,13 @@ async function loadTile(t) {
     bytesVersion = Math.max(version, Number(response.headers.get('X-Rim-Tile-Version')) || 0);
     bytes = await response.arrayBuffer();
   } catch (e) {
-    if (s.removed) return;
+    if (s.removed || t.dropped) return;
     t.failedVersion = version;
     if (e instanceof FetchError) sessionError(s, null, what, e);
     else recordError(`${what}: ${e.message}`);  // the body was cut off
     return;
   }
-  if (s.removed) return;
+  if (s.removed || t.dropped) return;
 
   let geometry = null;  // an empty tile (no faces) has an empty body and shows nothing
   if (bytes.byteLength > 0) {
@@ -433,11 +550,12 @@ async function loadTile(t) {
       geometry = await decodeDraco(bytes);
       if (!geometry.attributes.position) throw new Error('no positions');
     } catch (e) {
+      if (t.dropped) return;
       t.failedVersion = version;
       recordError(`${what}: decode failed (${e.message})`);
       return;
     }
-    if (s.removed || bytesVersion <= t.shownVersion) {
+    if (s.removed || t.dropped || bytesVersion <= t.shownVersion) {
       geometry.dispose();
       return;
     }
@@ -498,6 +616,8 @@ document.getElementById('fit').addEventListener('click', () => {
   autoFit = false;
   viewer?.fit();
 });
+const levelSelect = document.getElementById('level');
+levelSelect.addEventListener('change', () => chooseLevel(Number(levelSelect.value)));
 
 publish();
 requestAnimationFrame(refreshPanel);

@@ -5,6 +5,7 @@ import { robotCss } from './viewer.js';
 const integer = new Intl.NumberFormat('en-US');
 const fixed1 = new Intl.NumberFormat('en-US', { minimumFractionDigits: 1, maximumFractionDigits: 1 });
 const plural = (n, word) => `${integer.format(n)} ${word}${n === 1 ? '' : 's'}`;
+const metres = (level) => `${level} m`;
 
 // Rows of a session card: label, and the text for a session's view model.
 const ROWS = [
@@ -19,6 +20,7 @@ const ROWS = [
     + (v.pending ? `, ${integer.format(v.pending)} pending` : '')
     + (v.failed ? `, ${integer.format(v.failed)} failed` : '')],
   ['Triangles', (v) => integer.format(v.faces)],
+  ['Mesh level', (v) => (v.level === null ? 'finest' : metres(v.level))],
   ['Last loss', (v) => (Number.isFinite(v.entry.last_loss) ? v.entry.last_loss.toPrecision(3) : '–')],
   ['Position', (v) => (v.entry.pose
     ? `${v.entry.pose.position.map((c) => c.toFixed(1)).join(', ')} m`
@@ -37,6 +39,8 @@ export class Panel {
     this.sessionList = doc.getElementById('sessions');
     this.noSessions = doc.getElementById('no-sessions');
     this.totals = doc.getElementById('totals');
+    this.level = doc.getElementById('level');
+    this.levelOptions = '';  // the levels the select lists, to rebuild it only when they change
     this.cards = new Map();  // robot id -> { root, preset, frozen, values: [dd...] }
     this.order = '';         // robot ids as listed, to re-order cards only when that changes
     this.shownErrors = 0;
@@ -90,8 +94,8 @@ export class Panel {
     this.errors.hidden = errors.length === 0;
   }
 
-  // views: robot id -> view model { entry, mapVersion, tilesLoaded, tilesListed, pending, failed,
-  // faces }, in the order the server lists the sessions.
+  // views: robot id -> view model { entry, mapVersion, tilesListed, level, tilesLoaded, pending,
+  // failed, faces }, in the order the server lists the sessions.
   showSessions(views) {
     for (const [robot, card] of this.cards) {
       if (!views.has(robot)) {
@@ -118,6 +122,30 @@ export class Panel {
     }
     this.order = order;
     this.noSessions.hidden = views.size > 0;
+  }
+
+  // The level select: `levels` (metres, finest first) listed coarsest first, `level` selected.
+  setLevels(levels, level) {
+    const key = levels.join(',');
+    if (key !== this.levelOptions) {
+      this.levelOptions = key;
+      const options = [...levels].reverse().map((l) => {
+        const option = this.doc.createElement('option');
+        option.value = String(l);
+        option.textContent = metres(l);
+        return option;
+      });
+      if (options.length === 0) {
+        const none = this.doc.createElement('option');
+        none.value = '';
+        none.textContent = '–';
+        options.push(none);
+      }
+      this.level.replaceChildren(...options);
+      this.level.disabled = levels.length === 0;
+    }
+    const value = level === null ? '' : String(level);
+    if (this.level.value !== value) this.level.value = value;
   }
 
   setTotals(text) {

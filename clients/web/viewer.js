@@ -176,6 +176,18 @@ export class Viewer {
     this.zDirty = true;
   }
 
+  // Removes every tile shown for a robot (its trajectory and pose stay), freeing their memory.
+  clearTiles(robot) {
+    const r = this.robots.get(robot);
+    if (!r) return;
+    for (const mesh of r.tiles.values()) {
+      mesh.geometry.dispose();
+      r.group.remove(mesh);
+    }
+    r.tiles.clear();
+    this.zDirty = true;
+  }
+
   // Appends sensor positions ([x, y, z] each) to the robot's trajectory line.
   appendTrajectory(robot, positions) {
     if (positions.length === 0) return;

@@ -10,8 +10,11 @@ Chromium (SwiftShader: software WebGL, no GPU) and reports
   - the same while K sessions keep streaming (tiles replaced as their versions move).
 Prints one JSON object (and writes it with --out). BENCHMARK.md quotes it.
 
+The page shows the finest level of detail (as when these numbers were first measured), or the
+level --resolution-m names (the page's ?resolution_m=R; docs/dashboard.md).
+
 Usage: dashboard_bench.py BUILD_DIR [--sessions 12] [--frames 12] [--iterations 2] [--step 3]
-                          [--sample-s 40] [--live 2] [--out FILE]
+                          [--sample-s 40] [--live 2] [--resolution-m 0] [--out FILE]
 """
 
 from __future__ import annotations
@@ -85,6 +88,8 @@ def main() -> int:
     parser.add_argument("--step", type=float, default=3.0, help="metres driven per frame")
     parser.add_argument("--sample-s", type=float, default=40.0)
     parser.add_argument("--live", type=int, default=2, help="sessions streaming while sampled")
+    parser.add_argument("--resolution-m", type=float, default=0.0,
+                        help="level of detail the page shows (0: the finest)")
     parser.add_argument("--out")
     args = parser.parse_args()
     build = os.path.abspath(args.build)
@@ -92,7 +97,8 @@ def main() -> int:
     data = tempfile.mkdtemp(prefix="rim_dashboard_bench_")
     server = Server(build, data, "--max-sessions", str(args.sessions + 1))
     env = dict(os.environ, RIM_SERVER=server.address)
-    result: Dict[str, Any] = {"sessions": args.sessions, "frames_per_session": args.frames}
+    result: Dict[str, Any] = {"sessions": args.sessions, "frames_per_session": args.frames,
+                              "resolution_m": args.resolution_m}
     try:
         robots = [f"robot_{i:02d}" for i in range(args.sessions)]
         for robot in robots:
@@ -112,13 +118,13 @@ def main() -> int:
                 if p.wait() != 0:
                     raise RuntimeError("rimctl stream failed")
         result["streaming_s"] = round(time.monotonic() - start, 1)
-        counts = api_counts(server.url)
+        counts = api_counts(server.url, resolution_m=args.resolution_m)
         result["tiles"] = sum(t for t, _ in counts.values())
         result["triangles"] = sum(f for _, f in counts.values())
 
         with cdp.Browser(width=1280, height=800) as browser:
             opened = time.monotonic()
-            browser.navigate(server.url + "/")
+            browser.navigate(f"{server.url}/?resolution_m={args.resolution_m:g}")
             expected = json.dumps({r: [t, f] for r, (t, f) in counts.items()})
             browser.wait_for(
                 "(() => { const s = window.rimDashboard; if (!s || s.status !== 'ok') return false;"

@@ -3,14 +3,18 @@
 
 Starts rim_server with --http on loopback, streams a few frames of the simulated city for two
 robots with rimctl, and checks:
-  - the JSON API against the gRPC API: sessions, tiles (each tile's .drc bytes equal, byte for
-    byte, to what GetMeshTiles returns), trajectory, and the errors for bad input (unknown
-    session or tile: 404 with a JSON error; bad `since`: 400; paths that try to leave the static
-    folder: 404; methods other than GET/HEAD: 405; an oversized request line; slow clients that
-    hold connections while gRPC keeps answering);
+  - the JSON API against the gRPC API: sessions (and their levels of detail), tiles at the
+    finest and at a coarse level (each tile's .drc bytes equal, byte for byte, to what
+    GetMeshTiles returns at that level), trajectory, and the errors for bad input (unknown
+    session or tile: 404 with a JSON error; bad `since` or `resolution_m`: 400; paths that try
+    to leave the static folder: 404; methods other than GET/HEAD: 405; an oversized request
+    line; slow clients that hold connections while gRPC keeps answering);
   - the page, in Debian's Chromium driven over the DevTools protocol (tests/e2e/cdp.py): it must
-    report every tile the API lists loaded, with the same tile and triangle counts, and no error;
-    a screenshot is saved as the test's artefact;
+    start at the coarse default level (the level nearest 0.2 m) and report every tile the API
+    lists at that level loaded, with the same tile and triangle counts, and no error; a
+    screenshot is saved as the test's artefact. Switching its level select to the finest level
+    must show exactly the API's tiles at that level (more triangles), and a link with
+    ?resolution_m=R opens it at level R;
   - a failing case: a tile the API lists but that cannot be fetched (the browser answers its
     request with 500) shows an error on the page, and the same check then fails;
   - with --tokens: 401 without a token, the viewer's token reads, a robot's token reads only
@@ -134,42 +138,73 @@ def status_of(reply: bytes) -> int:
     return int(match.group(1)) if match else -1
 
 
-def api_counts(url: str, token: Optional[str] = None) -> Dict[str, Tuple[int, int]]:
-    """robot -> (tiles, faces) as the API lists them."""
+# The dashboard's default level of detail: the level nearest this among those the sessions offer
+# (docs/dashboard.md).
+DEFAULT_LEVEL_M = 0.2
+
+
+def same_level(a: Any, b: float) -> bool:
+    """Levels are float32 metres on the wire: equal within a micrometre, as the server compares."""
+    return isinstance(a, (int, float)) and abs(a - b) < 1e-6
+
+
+def nearest_level(levels: List[float], want: float) -> float:
+    """The level nearest `want` (ties: the finer), as the page picks its default."""
+    return min(sorted(levels), key=lambda level: abs(level - want))
+
+
+def api_counts(url: str, token: Optional[str] = None,
+               resolution_m: float = 0.0) -> Dict[str, Tuple[int, int]]:
+    """robot -> (tiles, faces) as the API lists them at a level of detail (0: the finest)."""
     out = {}
     for entry in get_json(f"{url}/api/v1/sessions", token)["sessions"]:
-        tiles = get_json(f"{url}/api/v1/sessions/{entry['robot_id']}/tiles?since=0",
-                         token)["tiles"]
+        listing = get_json(f"{url}/api/v1/sessions/{entry['robot_id']}/tiles?since=0"
+                           f"&resolution_m={resolution_m:g}", token)
+        if resolution_m and not same_level(listing.get("resolution_m"), resolution_m):
+            raise AssertionError(f"{entry['robot_id']}: asked for tiles at {resolution_m} m, "
+                                 f"listed at {listing.get('resolution_m')}")
+        tiles = listing["tiles"]
         out[entry["robot_id"]] = (len(tiles), sum(t["face_count"] for t in tiles))
     return out
 
 
-def page_matches(state: Any, counts: Dict[str, Tuple[int, int]]) -> Tuple[bool, str]:
-    """Whether the page's published state shows exactly the API's tiles, with no error."""
+def page_matches(state: Any, counts: Dict[str, Tuple[int, int]],
+                 resolution_m: Optional[float] = None) -> Tuple[bool, str]:
+    """Whether the page's published state shows exactly the API's tiles, with no error (and, when
+    given, at that level of detail, for the page and every session)."""
     if not isinstance(state, dict):
         return False, f"no state published: {state!r}"
     if state.get("status") != "ok" or state.get("errors"):
         return False, f"page status {state.get('status')}, errors {state.get('errors')}"
+    if resolution_m is not None and not same_level(state.get("resolution_m"), resolution_m):
+        return False, f"page shows level {state.get('resolution_m')} m, not {resolution_m} m"
     sessions = state.get("sessions", {})
     if set(sessions) != set(counts):
         return False, f"page shows sessions {sorted(sessions)}, API lists {sorted(counts)}"
     for robot, (tiles, faces) in counts.items():
         s = sessions[robot]
+        if resolution_m is not None and not same_level(s.get("resolution_m"), resolution_m):
+            return False, f"{robot}: page lists tiles at {s.get('resolution_m')} m"
         if s.get("pending") or s.get("tiles_loaded") != tiles or s.get("faces") != faces:
             return False, (f"{robot}: page has {s.get('tiles_loaded')} tiles, {s.get('faces')} "
                            f"triangles, {s.get('pending')} pending; API lists {tiles} tiles, "
                            f"{faces} triangles")
-    return True, "page matches the API"
+    return True, "page matches the API" + ("" if resolution_m is None else
+                                           f" at {resolution_m:g} m")
+
+
+def page_state(browser: "cdp.Browser") -> Any:
+    return browser.evaluate("window.rimDashboard ? JSON.parse(JSON.stringify("
+                            "window.rimDashboard)) : null")
 
 
 def wait_page(browser: "cdp.Browser", counts: Dict[str, Tuple[int, int]],
-              timeout_s: float) -> Tuple[bool, str, Any]:
+              timeout_s: float, resolution_m: Optional[float] = None) -> Tuple[bool, str, Any]:
     deadline = time.monotonic() + timeout_s
     ok, why, state = False, "", None
     while time.monotonic() < deadline:
-        state = browser.evaluate("window.rimDashboard ? JSON.parse(JSON.stringify("
-                                 "window.rimDashboard)) : null")
-        ok, why = page_matches(state, counts)
+        state = page_state(browser)
+        ok, why = page_matches(state, counts, resolution_m)
         if ok or (isinstance(state, dict) and state.get("status") == "error"):
             break
         time.sleep(0.5)
@@ -195,21 +230,33 @@ def check_api(server: Server, build: str, f: Failures) -> None:
         f.check(entry.get("map_version") == info.map_version,
                 f"{robot}: map version {entry.get('map_version')} (gRPC {info.map_version})")
 
+        levels = entry.get("mesh_levels_m") or []
+        f.check(len(levels) >= 3 and len(levels) == len(info.mesh_levels_m)
+                and all(same_level(a, b) for a, b in zip(levels, info.mesh_levels_m))
+                and all(b > a for a, b in zip(levels, levels[1:])),
+                f"{robot}: levels {levels} m, finest first, as gRPC's {info.mesh_levels_m}")
+        if not levels:
+            continue
         listed = get_json(f"{url}/api/v1/sessions/{robot}/tiles?since=0")
-        grpc_tiles = {t.key: t for t in client.session(robot).mesh_tiles()}
-        http_tiles = {tuple(t["key"]): t for t in listed["tiles"]}
-        f.check(len(http_tiles) > 0 and set(http_tiles) == set(grpc_tiles),
-                f"{robot}: {len(http_tiles)} tiles listed, as GetMeshTiles")
-        same = 0
-        for key, t in http_tiles.items():
-            status, headers, body = http(url + t["url"])
-            g = grpc_tiles.get(key)
-            if (status == 200 and g is not None and body == g.draco and t["version"] == g.version
-                    and t["face_count"] == g.face_count and t["bytes"] == len(body)
-                    and headers.get("X-Rim-Tile-Version") == str(g.version)):
-                same += 1
-        f.check(same == len(http_tiles),
-                f"{robot}: {same}/{len(http_tiles)} tiles byte-identical to GetMeshTiles")
+        f.check(same_level(listed.get("resolution_m"), levels[0]),
+                f"{robot}: a listing without resolution_m is at the finest level "
+                f"({listed.get('resolution_m')} m)")
+        fine_faces = check_tile_bytes(url, client, robot, listed, 0.0, f)
+        # A coarse level (the dashboard's default): its own bytes, as GetMeshTiles sends them at
+        # that level, and every URL names the level.
+        coarse = nearest_level(levels, DEFAULT_LEVEL_M)
+        coarse_listed = get_json(f"{url}/api/v1/sessions/{robot}/tiles?since=0"
+                                 f"&resolution_m={coarse:g}")
+        f.check(same_level(coarse_listed.get("resolution_m"), coarse)
+                and all("resolution_m=" in t["url"] for t in coarse_listed["tiles"])
+                and not any("resolution_m=" in t["url"] for t in listed["tiles"]),
+                f"{robot}: the {coarse:g} m listing says its level and its URLs name it")
+        coarse_faces = check_tile_bytes(url, client, robot, coarse_listed, coarse, f)
+        f.check(0 < coarse_faces < fine_faces,
+                f"{robot}: {coarse_faces} triangles at {coarse:g} m, {fine_faces} at the finest")
+        f.check({tuple(t["key"]): t["version"] for t in coarse_listed["tiles"]} ==
+                {tuple(t["key"]): t["version"] for t in listed["tiles"]},
+                f"{robot}: the same tiles at the same versions at every level")
         newest = max(t["version"] for t in listed["tiles"])
         f.check(listed.get("complete") is True and listed.get("next_since") == newest,
                 f"{robot}: a complete listing says so, next_since {listed.get('next_since')}")
@@ -227,7 +274,19 @@ def check_api(server: Server, build: str, f: Failures) -> None:
         f.check(len(rest["positions"]) == 2, "trajectory since=N gives frames N, N+1, ...")
     client.close()
 
-    # Bad input: clear JSON errors, and nothing changes.
+    # Bad input: clear JSON errors, and nothing changes. A level that is not the session's (or not
+    # a number) is a 400 naming resolution_m.
+    for path in ("/api/v1/sessions/car_a/tiles?resolution_m=0.07",
+                 "/api/v1/sessions/car_a/tiles?since=0&resolution_m=abc",
+                 "/api/v1/sessions/car_a/tiles?resolution_m=-0.2",
+                 "/api/v1/sessions/car_a/tiles/0_0_0.drc?resolution_m=0.07"):
+        status, headers, body = http(url + path)
+        try:
+            error = json.loads(body)["error"]
+            named = error["code"] == 400 and "resolution_m" in error["message"]
+        except (ValueError, KeyError, TypeError):
+            named = False
+        f.check(status == 400 and named, f"GET {path}: {status} {body[:160]!r}")
     for path, code in (("/api/v1/sessions/nobody", 404), ("/api/v1/sessions/nobody/tiles", 404),
                        ("/api/v1/sessions/car_a/tiles?since=abc", 400),
                        ("/api/v1/sessions/car_a/tiles?since=-1", 400),
@@ -275,26 +334,89 @@ def check_api(server: Server, build: str, f: Failures) -> None:
     f.check(status == 200, f"API after the stalled clients left: {status}")
 
 
+def check_tile_bytes(url: str, client: "rim_client.Client", robot: str, listed: Any,
+                     resolution_m: float, f: Failures) -> int:
+    """Every tile of an API listing at a level against GetMeshTiles at that level, byte for byte;
+    returns the listing's triangles."""
+    grpc_tiles = {t.key: t for t in client.session(robot).mesh_tiles(resolution_m=resolution_m)}
+    http_tiles = {tuple(t["key"]): t for t in listed["tiles"]}
+    level = f"{resolution_m:g} m" if resolution_m else "the finest level"
+    f.check(len(http_tiles) > 0 and set(http_tiles) == set(grpc_tiles),
+            f"{robot}: {len(http_tiles)} tiles listed at {level}, as GetMeshTiles")
+    same = 0
+    for key, t in http_tiles.items():
+        status, headers, body = http(url + t["url"])
+        g = grpc_tiles.get(key)
+        if (status == 200 and g is not None and body == g.draco and t["version"] == g.version
+                and t["face_count"] == g.face_count and t["bytes"] == len(body)
+                and headers.get("X-Rim-Tile-Version") == str(g.version)
+                and (not resolution_m or same_level(g.resolution_m, resolution_m))):
+            same += 1
+    f.check(same == len(http_tiles),
+            f"{robot}: {same}/{len(http_tiles)} tiles at {level} byte-identical to GetMeshTiles")
+    return sum(t["face_count"] for t in listed["tiles"])
+
+
+def choose_level(browser: "cdp.Browser", resolution_m: float) -> Any:
+    """Picks a level in the page's level select as a user does (its value, then 'change'); the
+    select's options as (value, label) pairs."""
+    return browser.evaluate(
+        "(() => { const select = document.getElementById('level');"
+        " const options = [...select.options].map((o) => [o.value, o.textContent]);"
+        f" select.value = {json.dumps(f'{resolution_m:g}')};"
+        " select.dispatchEvent(new Event('change'));"
+        " return options; })()")
+
+
 def check_page(server: Server, artefacts: str, f: Failures) -> None:
-    counts = api_counts(server.url)
+    levels = get_json(f"{server.url}/api/v1/sessions")["sessions"][0]["mesh_levels_m"]
+    default = nearest_level(levels, DEFAULT_LEVEL_M)
+    finest, middle = levels[0], levels[1]
+    f.check(default != finest, f"the default level {default:g} m is coarser than {finest:g} m")
+    counts = api_counts(server.url, resolution_m=default)
+    fine_counts = api_counts(server.url, resolution_m=finest)
     with cdp.Browser(width=1280, height=800) as browser:
         browser.navigate(server.url + "/")
-        ok, why, state = wait_page(browser, counts, timeout_s=120)
-        f.check(ok, f"page loaded the API's tiles: {why}")
+        ok, why, state = wait_page(browser, counts, timeout_s=120, resolution_m=default)
+        f.check(ok, f"page loaded the API's tiles at the default level: {why}")
         if state:
             print("page state:", json.dumps({k: state.get(k) for k in
-                                             ("status", "polls", "frame_ms", "heap_bytes")}))
+                                             ("status", "polls", "frame_ms", "heap_bytes",
+                                              "resolution_m", "mesh_levels_m")}))
+            f.check(len(state.get("mesh_levels_m") or []) == len(levels) and
+                    all(same_level(a, b) for a, b in zip(state["mesh_levels_m"], levels)),
+                    f"the page offers the sessions' levels: {state.get('mesh_levels_m')}")
         shot = os.path.join(artefacts, "dashboard.png")
         browser.screenshot(shot)
         f.check(os.path.getsize(shot) > 10000, f"screenshot {shot}")
+
+        # The level select: every level, coarsest first; picking the finest drops the coarse
+        # tiles and loads exactly the API's tiles at the finest level, with more triangles.
+        options = choose_level(browser, finest)
+        f.check([label for _, label in options] == [f"{level:g} m" for level in reversed(levels)],
+                f"the level select lists {options}")
+        ok, why, state = wait_page(browser, fine_counts, timeout_s=120, resolution_m=finest)
+        f.check(ok, f"after switching to {finest:g} m the page shows the API's tiles: {why}")
+        f.check(all(fine_counts[r][1] > counts[r][1] for r in counts),
+                f"more triangles at {finest:g} m {fine_counts} than at {default:g} m {counts}")
+        search = browser.evaluate("location.search")
+        f.check(f"resolution_m={finest:g}" in search, f"the URL names the level: {search!r}")
         for message in browser.console_messages():
             print("console:", message)
+
+    # A link to a level: ?resolution_m=R opens the page at R.
+    with cdp.Browser(width=1280, height=800) as browser:
+        middle_counts = api_counts(server.url, resolution_m=middle)
+        browser.navigate(f"{server.url}/?resolution_m={middle:g}")
+        ok, why, _ = wait_page(browser, middle_counts, timeout_s=120, resolution_m=middle)
+        f.check(ok, f"?resolution_m={middle:g} opens the page at that level: {why}")
 
     # A tile the API lists but that cannot be fetched: the page shows an error and the same
     # check fails.
     with cdp.Browser(width=1280, height=800) as browser:
         robot = sorted(counts)[0]
-        tiles = get_json(f"{server.url}/api/v1/sessions/{robot}/tiles?since=0")["tiles"]
+        tiles = get_json(f"{server.url}/api/v1/sessions/{robot}/tiles?since=0"
+                         f"&resolution_m={default:g}")["tiles"]
         broken = next(t for t in tiles if t["face_count"] > 0)
         name = "_".join(str(k) for k in broken["key"])
         browser.fail_requests(f"*/{robot}/tiles/{name}.drc*")
