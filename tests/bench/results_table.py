@@ -16,6 +16,10 @@ whether the target is met. A file is read as one of:
     `benchmark` is the run name without `/real_time` (rows match it by prefix);
   - rim_map's timing.json, rim_eval --json, rim_map --probe's probe.json: one run, the file;
   - tests/bench/moving_things.sh's moving_things.json: one run per row;
+  - rim_load --json FILE: one run per robot, {"options", "robot", "load": the robot's numbers
+    with the phase's "queries", "tiles" and "host_memory_mb", "baseline": the same robot's
+    numbers alone (with --baseline), "percent": rays trained per frame period under load against
+    alone};
   - tests/bench/fidelity.sh's fidelity.json: one run per row (the table `fidelity` reads every
     results/*fidelity*.json);
   - a long-mode CSV (rim_bench --rim_rss_csv): one run per frame;
@@ -101,11 +105,42 @@ def _number(text):
         return text
 
 
+def _is_rim_load(obj):
+    return isinstance(obj, dict) and "options" in obj and "load" in obj and \
+        isinstance(obj["load"], dict) and "robots" in obj["load"]
+
+
+def _rim_load_runs(obj):
+    """rim_load --json: one run per robot of the load phase."""
+    def phase_robot(phase, i):
+        robot = dict(phase["robots"][i])
+        for key in ("queries", "tiles", "host_memory_mb"):
+            if key in phase:
+                robot[key] = phase[key]
+        return robot
+    out = []
+    for i, robot in enumerate(obj["load"]["robots"]):
+        run = {"options": obj["options"], "robot": robot.get("name"),
+               "load": phase_robot(obj["load"], i)}
+        if "baseline" in obj and i < len(obj["baseline"].get("robots", [])):
+            run["baseline"] = phase_robot(obj["baseline"], i)
+        for entry in obj.get("alone_vs_load", []):
+            if entry.get("robot") == robot.get("name"):
+                run["percent"] = entry.get("percent")
+        out.append(run)
+    return out
+
+
 def _runs(obj):
     if isinstance(obj, list):                      # moving_things.json
         return obj
-    if "runs" in obj:                               # a transcription
-        return obj["runs"]
+    if _is_rim_load(obj):                           # rim_load --json
+        return _rim_load_runs(obj)
+    if "runs" in obj:                               # a transcription, or rim_load outputs
+        out = []
+        for run in obj["runs"]:
+            out.extend(_rim_load_runs(run) if _is_rim_load(run) else [run])
+        return out
     if "benchmarks" in obj:                         # rim_bench --benchmark_out
         medians, singles = {}, {}
         for b in obj["benchmarks"]:
