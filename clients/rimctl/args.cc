@@ -1,63 +1,50 @@
 #include "rimctl/args.h"
 
 #include <cmath>
+#include <iterator>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
+#include "rim/base/flags.h"
 
 namespace rim::rimctl {
 
 absl::StatusOr<Args> Args::Parse(const std::vector<std::string>& words,
                                  const std::vector<FlagSpec>& specs) {
   Args args;
-  bool flags_done = false;
-  for (size_t i = 0; i < words.size(); ++i) {
-    const std::string& word = words[i];
-    if (flags_done || word == "-" || word.rfind("-", 0) != 0) {
-      args.positional_.push_back(word);
-      continue;
+  CLI::App app("", "rimctl");
+  // Positional words anywhere, "-" (stdin) among them; CLI11 ends flags at "--".
+  app.add_option("WORDS", args.positional_);
+  for (const FlagSpec& spec : specs) {
+    std::vector<std::string>& slot = args.values_[spec.name];
+    const std::string flag = "--" + spec.name;
+    switch (spec.kind) {
+      case FlagKind::kBool:
+        app.add_flag_callback(flag, [&slot] { slot.push_back("true"); });
+        break;
+      case FlagKind::kValue:  // once: CLI11 refuses a second one
+        app.add_option_function<std::string>(flag,
+                                             [&slot](const std::string& v) { slot.push_back(v); });
+        break;
+      case FlagKind::kRepeated:
+        app.add_option_function<std::vector<std::string>>(
+               flag,
+               [&slot](const std::vector<std::string>& v) {
+                 slot.insert(slot.end(), v.begin(), v.end());
+               })
+            ->allow_extra_args(false);  // one value per flag
+        break;
     }
-    if (word == "--") {
-      flags_done = true;
-      continue;
-    }
-    if (word == "-h" || word == "--help") {
-      args.help_ = true;
-      continue;
-    }
-    if (word.rfind("--", 0) != 0) {
-      return absl::InvalidArgumentError(absl::StrCat("unknown flag '", word, "'"));
-    }
-    std::string name = word.substr(2), value;
-    const size_t eq = name.find('=');
-    const bool inline_value = eq != std::string::npos;
-    if (inline_value) {
-      value = name.substr(eq + 1);
-      name = name.substr(0, eq);
-    }
-    const FlagSpec* spec = nullptr;
-    for (const FlagSpec& s : specs) {
-      if (s.name == name) spec = &s;
-    }
-    if (spec == nullptr)
-      return absl::InvalidArgumentError(absl::StrCat("unknown flag '--", name, "'"));
-    if (spec->kind == FlagKind::kBool) {
-      if (inline_value) {
-        return absl::InvalidArgumentError(absl::StrCat("--", name, " takes no value"));
-      }
-      value = "true";
-    } else if (!inline_value) {
-      if (i + 1 >= words.size()) {
-        return absl::InvalidArgumentError(absl::StrCat("--", name, " needs a value"));
-      }
-      value = words[++i];
-    }
-    std::vector<std::string>& slot = args.values_[name];
-    if (spec->kind == FlagKind::kValue && !slot.empty()) {
-      return absl::InvalidArgumentError(absl::StrCat("--", name, " given more than once"));
-    }
-    slot.push_back(value);
+  }
+  const absl::Status parsed = cli::Parse(app, words);
+  if (absl::IsCancelled(parsed)) {
+    args.help_ = true;
+  } else if (!parsed.ok()) {
+    return parsed;
+  }
+  for (auto it = args.values_.begin(); it != args.values_.end();) {  // Has(): given
+    it = it->second.empty() ? args.values_.erase(it) : std::next(it);
   }
   return args;
 }

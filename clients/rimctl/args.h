@@ -1,6 +1,7 @@
 // rimctl's command-line parsing: positional words and `--flag value` / `--flag=value` options,
 // checked against the flags a command declares, so that a typo is an error naming the flag
-// rather than a silently ignored word.
+// rather than a silently ignored word. CLI11 parses (rim/base/flags.h, as in every rim binary);
+// the commands read the values through the typed getters below.
 #pragma once
 
 #include <map>

@@ -1,9 +1,10 @@
 // rimctl's dispatch, global flags and error reporting.
+#include <algorithm>
 #include <cstdlib>
 #include <iostream>
-#include <set>
 
 #include "absl/strings/str_cat.h"
+#include "rim/base/flags.h"
 #include "rimctl/commands.h"
 
 namespace rim::rimctl {
@@ -98,34 +99,43 @@ int UsageError(const Io& io, const std::string& command, const std::string& mess
 
 int RunRimctl(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
   const Io io{out, err};
-  std::vector<std::string> words(argv + 1, argv + argc);
   // The command is the first word that is neither a global flag nor a global flag's value, so
-  // that `rimctl --server ADDR info` and `rimctl info --server ADDR` both work.
-  std::set<std::string> valued;
-  for (const FlagSpec& f : GlobalFlags()) valued.insert("--" + f.name);
-  size_t command_at = words.size();
-  for (size_t i = 0; i < words.size(); ++i) {
-    const std::string& w = words[i];
-    if (valued.count(w)) {
-      ++i;
-      continue;
-    }
-    if (w == "-h" || w == "--help") {
-      out << kUsage;
-      return kExitOk;
-    }
-    if (w.rfind("-", 0) == 0 && w.find('=') != std::string::npos) continue;  // --server=ADDR
-    if (w.rfind("-", 0) == 0) {
-      err << "rimctl: unknown flag '" << w << "' before the command\n" << kUsage;
-      return kExitUsage;
-    }
-    command_at = i;
-    break;
+  // that `rimctl --server ADDR info` and `rimctl info --server ADDR` both work: CLI11 reads the
+  // global flags up to the command (prefix_command), which gets them back with its own words.
+  CLI::App app("", "rimctl");
+  app.prefix_command();
+  std::vector<std::string> words;  // the global flags before the command, as --name=value
+  for (const FlagSpec& f : GlobalFlags()) {
+    app.add_option_function<std::vector<std::string>>(
+           "--" + f.name,
+           [&words, name = f.name](const std::vector<std::string>& values) {
+             for (const std::string& v : values) words.push_back("--" + name + "=" + v);
+           })
+        ->allow_extra_args(false);
   }
-  if (command_at == words.size()) {
+  std::vector<std::string> rest;
+  const absl::Status parsed =
+      cli::Parse(app, std::vector<std::string>(argv + std::min(argc, 1), argv + argc), &rest);
+  if (absl::IsCancelled(parsed)) {
+    out << kUsage;
+    return kExitOk;
+  }
+  if (!parsed.ok()) {
+    err << "rimctl: " << parsed.message() << "\n" << kUsage;
+    return kExitUsage;
+  }
+  if (!rest.empty() && rest[0].size() > 1 && rest[0][0] == '-') {
+    err << "rimctl: unknown flag '" << rest[0].substr(0, rest[0].find('='))
+        << "' before the command\n"
+        << kUsage;
+    return kExitUsage;
+  }
+  if (rest.empty()) {
     err << "rimctl: no command given\n" << kUsage;
     return kExitUsage;
   }
+  const size_t command_at = words.size();
+  words.insert(words.end(), rest.begin(), rest.end());
   const std::string command = words[command_at];
   words.erase(words.begin() + long(command_at));
   if (command == "info") return RunInfo(words, io);

@@ -85,6 +85,7 @@ TEST(CliFlagsTest, UsageErrorsNameTheFlag) {
       {{"in", "--bogus", "1"}, "unknown flag '--bogus'"},
       {{"in", "--bogus=1"}, "unknown flag '--bogus'"},
       {{"in", "stray"}, "unexpected argument 'stray'"},
+      {{"in", "--verbose=yes"}, "--verbose takes no value"},
   };
   for (const auto& [args, message] : cases) {
     Flags f;
@@ -92,6 +93,14 @@ TEST(CliFlagsTest, UsageErrorsNameTheFlag) {
     EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << message;
     EXPECT_EQ(s.message(), message);
   }
+}
+
+TEST(CliFlagsTest, DoubleDashEndsTheFlags) {
+  Flags f;
+  ASSERT_TRUE(ParseInto(f, {"--count", "4", "--", "-in-"}).ok());
+  EXPECT_EQ(f.input, "-in-");
+  EXPECT_EQ(f.count, 4);
+  EXPECT_EQ(ParseInto(f, {"--", "a", "b"}).message(), "unexpected argument 'b'");
 }
 
 TEST(CliFlagsTest, TakeLastKeepsTheLastValue) {

@@ -44,6 +44,10 @@ TEST(RimctlArgsTest, MistakesNameTheFlag) {
   EXPECT_THAT(Args::Parse({"--save=yes"}, specs).status().message(),
               HasSubstr("--save takes no value"));
   EXPECT_TRUE(Args::Parse({"-h"}, specs)->help());
+  auto after_dashes = Args::Parse({"a", "--", "--save", "-"}, specs);  // "--" ends the flags
+  ASSERT_TRUE(after_dashes.ok()) << after_dashes.status();
+  EXPECT_EQ(after_dashes->positional(), (std::vector<std::string>{"a", "--save", "-"}));
+  EXPECT_FALSE(after_dashes->Has("save"));
 }
 
 TEST(RimctlArgsTest, FrameRanges) {

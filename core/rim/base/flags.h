@@ -14,7 +14,8 @@
 //   // error whose message names the flag, exit 2.
 //
 // The conventions:
-//   - `--flag value` and `--flag=value` alike; a switch (add_flag) is given alone;
+//   - `--flag value` and `--flag=value` alike; a switch (add_flag) is given alone ("--x takes no
+//     value");
 //   - usage errors read "unknown flag '--x'", "unexpected argument 'x'", "--x needs a value",
 //     "--x given more than once" (options that keep their last value instead say
 //     ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast)), or what a check below says;
@@ -143,12 +144,21 @@ inline absl::Status Translate(const CLI::ParseError& e) {
       return absl::InvalidArgumentError(absl::StrCat(name, " needs a value"));
     if (std::string name = NameBefore(what, "At Most 1 required"); !name.empty())
       return absl::InvalidArgumentError(absl::StrCat(name, " given more than once"));
+    // "NAME was given a disallowed flag override" (NAME without its dashes).
+    if (const size_t at = what.find(" was given a disallowed flag override");
+        at != std::string::npos) {
+      const std::string name = what.substr(0, at);
+      return absl::InvalidArgumentError(
+          absl::StrCat(name.rfind("-", 0) == 0 ? "" : "--", name, " takes no value"));
+    }
   }
   return absl::InvalidArgumentError(what);
 }
 
-// After a parse with extras allowed: the first unknown flag, else the first stray argument.
-inline absl::Status Leftovers(const std::vector<std::string>& left) {
+// After a parse with extras allowed: the first unknown flag, else the first stray argument. CLI11
+// keeps the "--" that ends the flags among them.
+inline absl::Status Leftovers(std::vector<std::string> left) {
+  left.erase(std::remove(left.begin(), left.end(), "--"), left.end());
   for (const std::string& word : left) {
     if (word.size() > 1 && word[0] == '-') {
       return absl::InvalidArgumentError(
@@ -164,8 +174,14 @@ inline absl::Status Leftovers(const std::vector<std::string>& left) {
 
 // Parses ARGS (the words after the program's name) into APP. OK; Cancelled when -h/--help was
 // asked (print app.help()); InvalidArgument with a message that names the bad flag or argument.
-inline absl::Status Parse(CLI::App& app, std::vector<std::string> args) {
-  app.allow_extras();                      // worded by Leftovers
+// With LEFT, the words APP does not know (say, after a prefix_command()'s first positional) go
+// there instead of being usage errors.
+inline absl::Status Parse(CLI::App& app, std::vector<std::string> args,
+                          std::vector<std::string>* left = nullptr) {
+  app.allow_extras();  // worded by Leftovers
+  for (CLI::Option* opt : app.get_options()) {
+    if (opt->get_expected_max() == 0) opt->disable_flag_override();  // a switch takes no value
+  }
   std::reverse(args.begin(), args.end());  // CLI11's vector form takes them last first
   try {
     app.parse(args);
@@ -175,6 +191,10 @@ inline absl::Status Parse(CLI::App& app, std::vector<std::string> args) {
     return absl::CancelledError("help");
   } catch (const CLI::ParseError& e) {
     return internal::Translate(e);
+  }
+  if (left != nullptr) {
+    *left = app.remaining();
+    return absl::OkStatus();
   }
   return internal::Leftovers(app.remaining());
 }
