@@ -407,6 +407,18 @@ class ClientTest(unittest.TestCase):
                                 "--out", out, "--iterations", "2", "--interval", "0")
             self.assertEqual(twice.returncode, 0, twice.stderr)
             self.assertIn("round 2: no change since version", twice.stdout)
+            # At a coarse level of detail: that level's bytes.
+            coarse_level = self.session.get().mesh_levels_m[-1]
+            coarse = run_example("dashboard.py", "--server", SERVER.address, "--robot", ROBOT,
+                                 "--out", out, "--once", "--resolution-m", f"{coarse_level:g}")
+            self.assertEqual(coarse.returncode, 0, coarse.stdout + coarse.stderr)
+            for tile in self.session.mesh_tiles(resolution_m=coarse_level):
+                with open(os.path.join(out, "tile_{}_{}_{}.drc".format(*tile.key)), "rb") as f:
+                    self.assertEqual(f.read(), tile.draco)
+            wrong = run_example("dashboard.py", "--server", SERVER.address, "--robot", ROBOT,
+                                "--out", out, "--once", "--resolution-m", "0.07")
+            self.assertEqual(wrong.returncode, 2)
+            self.assertIn("resolution_m", wrong.stderr)
         finally:
             shutil.rmtree(out, ignore_errors=True)
 

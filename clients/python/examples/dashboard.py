@@ -3,9 +3,11 @@
 
 Polls GetMeshTiles with the newest tile version seen so far, so each round transfers only the
 tiles that changed, writes each as tile_<kx>_<ky>_<kz>.drc (replacing the previous version of that
-sub-map) and prints one line per round.
+sub-map) and prints one line per round. --resolution-m picks a level of detail (one of the
+session's mesh_levels_m; default: the finest).
 
     dashboard.py --server localhost:50051 --robot robot_1 --out /tmp/tiles [--once | --iterations N]
+                 [--resolution-m 0.2]
 
 Exit status: 0 done (or interrupted), 2 on bad arguments or a server error.
 """
@@ -31,6 +33,8 @@ def parse_args(argv: Optional[List[str]]) -> argparse.Namespace:
     rounds.add_argument("--iterations", type=int, help="this many rounds, then exit")
     parser.add_argument("--interval", type=float, default=1.0, help="seconds between rounds")
     parser.add_argument("--token", help="bearer token for the server")
+    parser.add_argument("--resolution-m", type=float, default=0.0,
+                        help="level of detail: one of the session's mesh_levels_m (0: the finest)")
     args = parser.parse_args(argv)
     if args.iterations is not None and args.iterations < 1:
         parser.error(f"--iterations must be >= 1, got {args.iterations}")
@@ -58,10 +62,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     try:
         with rim_client.Client(args.server, token=args.token) as client:
             session = client.session(args.robot)
+            if args.resolution_m:
+                levels = ", ".join(f"{level:g}" for level in session.get().mesh_levels_m)
+                print(f"levels of detail {levels} m; mirroring {args.resolution_m:g} m",
+                      flush=True)
             while rounds is None or done < rounds:
                 if done > 0:
                     time.sleep(args.interval)
-                tiles = session.mesh_tiles(since=last_version)
+                tiles = session.mesh_tiles(since=last_version, resolution_m=args.resolution_m)
                 done += 1
                 if not tiles:
                     print(f"round {done}: no change since version {last_version}", flush=True)
