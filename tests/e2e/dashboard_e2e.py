@@ -401,6 +401,16 @@ def check_page(server: Server, artefacts: str, f: Failures) -> None:
                 f"more triangles at {finest:g} m {fine_counts} than at {default:g} m {counts}")
         search = browser.evaluate("location.search")
         f.check(f"resolution_m={finest:g}" in search, f"the URL names the level: {search!r}")
+        # And back to the coarsest: the fine tiles go, the coarse ones come (fewer triangles).
+        coarsest = levels[-1]
+        choose_level(browser, coarsest)
+        coarsest_counts = api_counts(server.url, resolution_m=coarsest)
+        ok, why, state = wait_page(browser, coarsest_counts, timeout_s=120, resolution_m=coarsest)
+        f.check(ok, f"after switching to {coarsest:g} m the page shows the API's tiles: {why}")
+        f.check(all(coarsest_counts[r][1] < counts[r][1] for r in counts)
+                and (state or {}).get("level_switches") == 2,
+                f"fewer triangles at {coarsest:g} m {coarsest_counts}, "
+                f"{(state or {}).get('level_switches')} level switches")
         for message in browser.console_messages():
             print("console:", message)
 
