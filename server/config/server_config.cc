@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_replace.h"
 #include "absl/strings/string_view.h"
+#include "rim/base/flags.h"
 
 namespace rim::server {
 namespace {
@@ -135,6 +136,40 @@ absl::Status ApplyFile(const std::string& path, ServerConfig* c) {
   return absl::OkStatus();
 }
 
+// The settings the command line takes, as the config file's keys (with dashes).
+struct Setting {
+  const char* name;
+  bool is_switch;  // given alone on the command line (--insecure), true or false in the file
+};
+constexpr Setting kSettings[] = {
+    {"config", false},
+    {"listen", false},
+    {"data-dir", false},
+    {"metrics", false},
+    {"http", false},
+    {"web-root", false},
+    {"preset", false},
+    {"max-sessions", false},
+    {"queue-length", false},
+    {"checkpoint-every", false},
+    {"max-query-points", false},
+    {"max-streams", false},
+    {"max-points-per-scan", false},
+    {"warmup-frames", false},
+    {"train-slots", false},
+    {"background-nice", false},
+    {"meshing-cores", false},
+    {"shutdown-deadline", false},
+    {"tokens", false},
+    {"tls-cert", false},
+    {"tls-key", false},
+    {"tls-client-ca", false},
+    {"replica-id", false},
+    {"shared-sessions", true},
+    {"insecure", true},
+    {"host-memory-budget-bytes", false},
+};
+
 }  // namespace
 
 std::string ServerUsage() {
@@ -193,22 +228,33 @@ std::string ServerConfig::ToString() const {
 }
 
 absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
+  // CLI11 reads the command line (rim/base/flags.h); Apply checks each value, as it does the
+  // config file's. A flag given twice keeps its last value; every flag also answers to its name
+  // with underscores (--data_dir), as the config file's keys do.
+  CLI::App app("", "rim_server");
+  std::map<std::string, std::string> given;  // setting (with dashes) -> value
+  for (const Setting& setting : kSettings) {
+    std::string names = absl::StrCat("--", setting.name);
+    if (const std::string underscored = absl::StrReplaceAll(setting.name, {{"-", "_"}});
+        underscored != setting.name)
+      absl::StrAppend(&names, ",--", underscored);
+    CLI::Option* option = app.add_option_function<std::string>(
+        names, [&given, name = std::string(setting.name)](const std::string& value) {
+          given[name] = value;
+        });
+    option->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+    // --insecure alone means true; --insecure=false as the config file's `insecure = false`.
+    if (setting.is_switch) option->expected(0, 1);
+  }
+  if (absl::Status parsed = cli::Parse(app, argc, argv); !parsed.ok()) {
+    // rim_server's main prints the usage for -h/--help before it asks for the config.
+    if (absl::IsCancelled(parsed)) return absl::InvalidArgumentError("-h/--help is not a setting");
+    return parsed;
+  }
   std::vector<std::pair<std::string, std::string>> flags;
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i];
-    if (arg.rfind("--", 0) != 0)
-      return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
-    arg = arg.substr(2);
-    const size_t eq = arg.find('=');
-    if (arg == "insecure" || arg == "shared-sessions") {  // the flags without a value
-      flags.emplace_back(arg, "true");
-    } else if (eq != std::string::npos) {
-      flags.emplace_back(arg.substr(0, eq), arg.substr(eq + 1));
-    } else {
-      if (i + 1 >= argc)
-        return absl::InvalidArgumentError(absl::StrCat("--", arg, " needs a value"));
-      flags.emplace_back(arg, argv[++i]);
-    }
+  for (const auto& [name, value] : given) {
+    const bool is_switch = name == "insecure" || name == "shared-sessions";
+    flags.emplace_back(name, is_switch && value.empty() ? "true" : value);
   }
   ServerConfig config;
   for (const auto& [name, value] : flags) {

@@ -58,9 +58,10 @@ struct ServerConfig {
   std::string ToString() const;
 };
 
-// Parses argv (flags as `--name value` or `--name=value`; --insecure alone means true); a --config
-// file is read first and the flags override it. INVALID_ARGUMENT naming the flag for an unknown
-// flag, a missing or bad value, a missing --data-dir, or TLS flags that do not go together.
+// Parses argv with CLI11 (rim/base/flags.h: flags as `--name value` or `--name=value`, also with
+// underscores, `--data_dir`; --insecure alone means true); a --config file is read first and the
+// flags override it. INVALID_ARGUMENT naming the flag for an unknown flag, a missing or bad value,
+// a missing --data-dir, or TLS flags that do not go together.
 absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv);
 
 // Usage text for --help and errors.
