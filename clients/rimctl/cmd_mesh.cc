@@ -5,6 +5,7 @@
 #include <iostream>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "absl/strings/str_format.h"
@@ -15,20 +16,23 @@
 namespace rim::rimctl {
 namespace {
 
-constexpr char kMeshUsage[] = R"(usage: rimctl mesh ROBOT_ID --out DIR [--since V]
+constexpr char kMeshUsage[] = R"(usage: rimctl mesh ROBOT_ID --out DIR [--since V] [--resolution M]
 
 Fetches the session's mesh tiles (one per sub-map, Draco-compressed) newer than map version V
 (default 0: all), writes each as DIR/tile_X_Y_Z.drc and all of them merged into DIR/mesh.ply,
 with the copies of border vertices that neighbouring tiles share welded into one. Prints the tile
 count, Draco bytes, and the merged mesh's vertices and faces.
+--resolution M: the level of detail, M metres a mesh cell (one of the session's mesh levels,
+`rimctl session get` lists them; default 0: the finest).
 )";
 
 constexpr char kWatchUsage[] =
-    R"(usage: rimctl watch ROBOT_ID [--count N] [--duration S] [--since V]
+    R"(usage: rimctl watch ROBOT_ID [--count N] [--duration S] [--since V] [--resolution M]
 
 Prints each mesh tile as training changes it, and the session's stats every 2 s. Starts from the
 session's current map version (--since 0 first replays every tile). Stops after N tiles, after S
-seconds, or on Ctrl-C.
+seconds, or on Ctrl-C. --resolution M watches the tiles at level of detail M metres (one of the
+session's mesh levels; default 0: the finest).
 )";
 
 std::string TileName(const DecodedTile& t) {
@@ -81,8 +85,9 @@ class StatsPrinter {
 }  // namespace
 
 int RunMesh(const std::vector<std::string>& words, const Io& io) {
-  auto args =
-      Args::Parse(words, WithGlobalFlags({{"out", FlagKind::kValue}, {"since", FlagKind::kValue}}));
+  auto args = Args::Parse(words, WithGlobalFlags({{"out", FlagKind::kValue},
+                                                  {"since", FlagKind::kValue},
+                                                  {"resolution", FlagKind::kValue}}));
   if (!args.ok()) return UsageError(io, "mesh", std::string(args.status().message()), kMeshUsage);
   if (args->help()) return PrintHelp(io, kMeshUsage);
   if (args->positional().size() != 1) {
@@ -91,11 +96,14 @@ int RunMesh(const std::vector<std::string>& words, const Io& io) {
   if (args->Get("out").empty()) return UsageError(io, "mesh", "needs --out DIR", kMeshUsage);
   auto since = args->GetInt("since", 0, 0, std::numeric_limits<long>::max());
   if (!since.ok()) return UsageError(io, "mesh", std::string(since.status().message()), kMeshUsage);
+  auto resolution = args->GetDouble("resolution", 0, 0, 100);
+  if (!resolution.ok())
+    return UsageError(io, "mesh", std::string(resolution.status().message()), kMeshUsage);
   const std::string robot = args->positional()[0], dir = args->Get("out");
 
   auto client = ConnectFromArgs(*args);
   if (!client.ok()) return Fail(io, client.status());
-  auto tiles = client->Session(robot).MeshTiles(uint64_t(*since));
+  auto tiles = client->Session(robot).MeshTiles(uint64_t(*since), std::nullopt, float(*resolution));
   if (!tiles.ok()) return Fail(io, tiles.status());
   const absl::Status made = MakeDirs(dir);
   if (!made.ok()) return Fail(io, made);
@@ -126,7 +134,8 @@ int RunMesh(const std::vector<std::string>& words, const Io& io) {
 int RunWatch(const std::vector<std::string>& words, const Io& io) {
   auto args = Args::Parse(words, WithGlobalFlags({{"count", FlagKind::kValue},
                                                   {"duration", FlagKind::kValue},
-                                                  {"since", FlagKind::kValue}}));
+                                                  {"since", FlagKind::kValue},
+                                                  {"resolution", FlagKind::kValue}}));
   if (!args.ok()) return UsageError(io, "watch", std::string(args.status().message()), kWatchUsage);
   if (args->help()) return PrintHelp(io, kWatchUsage);
   if (args->positional().size() != 1) {
@@ -135,7 +144,9 @@ int RunWatch(const std::vector<std::string>& words, const Io& io) {
   auto count = args->GetInt("count", 0, 1, std::numeric_limits<int>::max());
   auto duration = args->GetDouble("duration", 0, 0.001, 1e7);
   auto since = args->GetInt("since", -1, 0, std::numeric_limits<long>::max());
-  for (const absl::Status& s : {count.status(), duration.status(), since.status()}) {
+  auto resolution = args->GetDouble("resolution", 0, 0, 100);
+  for (const absl::Status& s :
+       {count.status(), duration.status(), since.status(), resolution.status()}) {
     if (!s.ok()) return UsageError(io, "watch", std::string(s.message()), kWatchUsage);
   }
   const std::string robot = args->positional()[0];
@@ -148,6 +159,7 @@ int RunWatch(const std::vector<std::string>& words, const Io& io) {
   WatchOptions options;
   options.since_version = *since >= 0 ? uint64_t(*since) : info->map_version();
   options.duration = std::chrono::milliseconds(long(*duration * 1000));
+  options.resolution_m = float(*resolution);
   io.out << "watching " << robot << " from map version " << options.since_version << "\n"
          << std::flush;
 
@@ -159,9 +171,10 @@ int RunWatch(const std::vector<std::string>& words, const Io& io) {
       [&](const DecodedTile& t) {
         std::lock_guard<std::mutex> lock(out_mu);
         ++seen;
-        io.out << absl::StrFormat("tile (%d,%d,%d) version %u: %u faces, %u vertices, %u bytes\n",
-                                  t.key[0], t.key[1], t.key[2], t.version, t.mesh.faces.size(),
-                                  t.mesh.vertices.size(), t.draco.size())
+        io.out << absl::StrFormat(
+                      "tile (%d,%d,%d) version %u: %u faces, %u vertices, %u bytes, %g m\n",
+                      t.key[0], t.key[1], t.key[2], t.version, t.mesh.faces.size(),
+                      t.mesh.vertices.size(), t.draco.size(), t.resolution_m)
                << std::flush;
         return *count == 0 || seen < *count;
       },

@@ -49,6 +49,9 @@ void PrintSession(const rim::v1::SessionInfo& s, bool with_config, std::ostream&
       << absl::StrFormat("host memory: %.1f MiB\n", double(s.host_memory_bytes()) / (1 << 20))
       << "decoder frozen: " << (s.decoder_frozen() ? "yes" : "no") << "\n"
       << absl::StrFormat("last loss: %.6g\n", s.last_loss());
+  out << "mesh levels:";
+  for (float level : s.mesh_levels_m()) out << absl::StrFormat(" %g", level);
+  out << " m\n";
   if (with_config) out << "config:\n" << s.config();
 }
 

@@ -198,7 +198,23 @@ TEST_F(RimctlCliTest, MeshFilesAndWatch) {
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   EXPECT_GT(mesh->faces.size(), 1000u);
 
-  const ProcessResult watch = Rimctl({"watch", kRobot, "--duration", "0.5"});
+  // A coarser level of detail: the same surface in fewer faces; a level the session lacks is
+  // refused by name.
+  const ProcessResult session = Rimctl({"session", "get", kRobot});
+  ASSERT_EQ(session.exit_code, 0) << Describe(session);
+  EXPECT_THAT(session.out, HasSubstr("mesh levels: 0.05 0.1 0.2"));
+  const std::string coarse_dir = g_dir + "/mesh_coarse";
+  const ProcessResult coarse = Rimctl({"mesh", kRobot, "--out", coarse_dir, "--resolution", "0.2"});
+  ASSERT_EQ(coarse.exit_code, 0) << Describe(coarse);
+  auto coarse_mesh = ReadMeshPly(coarse_dir + "/mesh.ply");
+  ASSERT_TRUE(coarse_mesh.ok()) << coarse_mesh.status();
+  EXPECT_GT(coarse_mesh->faces.size(), 0u);
+  EXPECT_LT(3 * coarse_mesh->faces.size(), mesh->faces.size());
+  const ProcessResult bad = Rimctl({"mesh", kRobot, "--out", coarse_dir, "--resolution", "0.07"});
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_THAT(bad.err, HasSubstr("resolution_m"));
+
+  const ProcessResult watch = Rimctl({"watch", kRobot, "--duration", "0.5", "--resolution", "0.2"});
   EXPECT_EQ(watch.exit_code, 0) << Describe(watch);
   EXPECT_THAT(watch.out, HasSubstr("watched 0 tile updates"));
 }
