@@ -6,62 +6,71 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <vector>
 
 #include "bench/bench_common.h"
+#include "rim/base/flags.h"
 #include "rim/base/version.h"
 
 namespace {
 
-constexpr char kUsage[] =
-    "rim_bench [benchmark flags] [rim flags]\n"
-    "  --rim_long                 also run Sequence/*: the whole sequence, memory per frame\n"
-    "                             (or RIM_BENCH_LONG=1 in the environment)\n"
-    "  --rim_rss_csv=PREFIX       long mode: write PREFIX.<preset>.csv, one row per frame\n"
-    "  --rim_sequence_frames=N    city frames generated at start (default 120)\n"
-    "  --rim_warmup_frames=N      frames integrated before timing (default 5)\n"
-    "  --rim_measured_frames=N    frames timed by Frame/* (default 20)\n"
-    "  --rim_map_frames=N         frames in the map that Query/Mesh/Session read (default 20)\n"
-    "  --rim_seed=S               city seed (default 1)\n";
+constexpr char kSynopsis[] = "rim_bench [benchmark flags] [rim flags]";
 
-// Parses "--name=value" into *value; false when `arg` is another flag.
-bool IntFlag(const char* arg, const char* name, int* value) {
-  const size_t len = std::strlen(name);
-  if (std::strncmp(arg, name, len) != 0 || arg[len] != '=') return false;
-  char* end = nullptr;
-  const long v = std::strtol(arg + len + 1, &end, 10);
-  if (*end != '\0' || v < 0) {
-    std::fprintf(stderr, "rim_bench: bad value in %s\n%s", arg, kUsage);
-    std::exit(2);
-  }
-  *value = int(v);
-  return true;
-}
-
-// Takes the rim_* flags out of argv; the rest go to Google Benchmark.
+// Takes the rim_* flags out of argv (CLI11, rim/base/flags.h); the rest go to Google Benchmark.
 rim::bench::BenchOptions ParseRimFlags(int* argc, char** argv) {
   rim::bench::BenchOptions o;
   const char* env_long = std::getenv("RIM_BENCH_LONG");
   o.long_mode = env_long != nullptr && std::strcmp(env_long, "0") != 0 && *env_long != '\0';
   int seed = int(o.seed);
-  int kept = 1;
-  for (int i = 1; i < *argc; ++i) {
-    const char* a = argv[i];
-    if (std::strcmp(a, "--help") == 0) std::fputs(kUsage, stdout);  // then the library's help
-    if (std::strcmp(a, "--rim_long") == 0) {
-      o.long_mode = true;
-    } else if (std::strncmp(a, "--rim_rss_csv=", 14) == 0) {
-      o.rss_csv = a + 14;
-    } else if (IntFlag(a, "--rim_sequence_frames", &o.sequence_frames) ||
-               IntFlag(a, "--rim_warmup_frames", &o.warmup_frames) ||
-               IntFlag(a, "--rim_measured_frames", &o.measured_frames) ||
-               IntFlag(a, "--rim_map_frames", &o.map_frames) || IntFlag(a, "--rim_seed", &seed)) {
-    } else if (std::strncmp(a, "--rim_", 6) == 0) {
-      std::fprintf(stderr, "rim_bench: unknown flag %s\n%s", a, kUsage);
+  CLI::App app("", "rim_bench");
+  rim::cli::SetHelp(app, kSynopsis, "", 29);
+  app.set_help_flag();  // --help goes on to the library, which prints its own flags after ours
+  auto count = [&app](const char* flag, int* value, const char* description) {
+    app.add_option(flag, *value, description)
+        ->type_name("N")
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast)
+        ->transform(
+            rim::cli::IntegerIn(0, std::numeric_limits<int>::max(), [flag](const std::string& v) {
+              return std::string("bad value in ") + flag + "=" + v;
+            }));
+  };
+  app.add_flag("--rim_long", o.long_mode,
+               "also run Sequence/*: the whole sequence, memory per frame\n"
+               "(or RIM_BENCH_LONG=1 in the environment)");
+  app.add_option("--rim_rss_csv", o.rss_csv,
+                 "long mode: write PREFIX.<preset>.csv, one row per frame")
+      ->type_name("PREFIX")
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  count("--rim_sequence_frames", &o.sequence_frames,
+        "city frames generated at start (default 120)");
+  count("--rim_warmup_frames", &o.warmup_frames, "frames integrated before timing (default 5)");
+  count("--rim_measured_frames", &o.measured_frames, "frames timed by Frame/* (default 20)");
+  count("--rim_map_frames", &o.map_frames,
+        "frames in the map that Query/Mesh/Session read (default 20)");
+  count("--rim_seed", &seed, "city seed (default 1)");
+  std::vector<std::string> rest;  // Google Benchmark's flags, in their order
+  const absl::Status parsed =
+      rim::cli::Parse(app, std::vector<std::string>(argv + 1, argv + *argc), &rest);
+  if (!parsed.ok()) {
+    std::fprintf(stderr, "rim_bench: %s\n%s", std::string(parsed.message()).c_str(),
+                 app.help().c_str());
+    std::exit(2);
+  }
+  for (const std::string& word : rest) {
+    if (word == "--help") std::fputs(app.help().c_str(), stdout);  // then the library's help
+    if (word.rfind("--rim_", 0) == 0) {
+      std::fprintf(stderr, "rim_bench: unknown flag %s\n%s", word.c_str(), app.help().c_str());
       std::exit(2);
-    } else {
+    }
+  }
+  // argv keeps its own strings: the words CLI11 left, in order, are a subsequence of it.
+  int kept = 1;
+  for (int i = 1, next = 0; i < *argc && next < int(rest.size()); ++i) {
+    if (rest[size_t(next)] == argv[i]) {
       argv[kept++] = argv[i];
+      ++next;
     }
   }
   *argc = kept;
