@@ -1,6 +1,6 @@
 // rim's one way to read a command line: CLI11 (Debian's libcli11-dev, header-only), and the few
-// conventions every rim binary keeps on top of it (docs/clients.md, "Command lines"). Header-only:
-// rim_core links CLI11 for every binary, the server's included.
+// conventions every rim binary keeps on top of it (docs/clients.md, "Command lines: one flag
+// library"). rim_core links CLI11 for every binary, the server's included.
 //
 //   CLI::App app;
 //   rim::cli::SetHelp(app, "usage: rim_x DATASET --out DIR [--voxel M]", "What it does.");
@@ -15,7 +15,7 @@
 //
 // The conventions:
 //   - `--flag value` and `--flag=value` alike; a switch (add_flag) is given alone ("--x takes no
-//     value");
+//     value"); "--" ends the flags;
 //   - usage errors read "unknown flag '--x'", "unexpected argument 'x'", "--x needs a value",
 //     "--x given more than once" (options that keep their last value instead say
 //     ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast)), or what a check below says;
@@ -43,8 +43,9 @@
 
 namespace rim::cli {
 
-// A usage error whose message is printed as it is. Thrown from the checks below: CLI11 2.1 wraps
-// only its own ValidationError into "NAME: message", so this one reaches Parse unchanged.
+// A usage error whose message is printed as it is. Thrown from the checks below or from an
+// option's callback (add_option_function): CLI11 2.1 wraps only its own ValidationError into
+// "NAME: message", so this one reaches Parse unchanged.
 class UsageError : public CLI::ParseError {
  public:
   explicit UsageError(std::string message)
