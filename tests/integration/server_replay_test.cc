@@ -117,7 +117,7 @@ TEST(ServerReplayTest, AFlatOutReplayTrainsTheOfflineIterationsAndARealTimeStrea
       "for %.2f s of drive, median lag %d, median rays/frame %d\n",
       replay.seconds, Median(replay.iterations), Median(ahead.iterations), live.seconds,
       kFrames * kPeriodS, Median(live.lag), Median(live.iterations) * Median(live.rays));
-  EXPECT_LE(Median(std::vector<int>(live.lag.begin() + kFrames / 2, live.lag.end())), 1);
+  EXPECT_LE(Median(std::vector<int>(live.lag.begin() + kFrames / 2, live.lag.end())), 2);  // of 8
   EXPECT_LT(live.seconds, kFrames * kPeriodS + 1.0);
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }
