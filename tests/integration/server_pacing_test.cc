@@ -16,11 +16,13 @@
 #include "client/client.h"
 #include "support/server_process.h"
 #include "support/small_session.h"
+#include "support/stream_acks.h"
 
 namespace rim {
 namespace {
 
 using testing_support::GroundScan;
+using testing_support::SecondHalfMedian;
 using testing_support::ServerProcess;
 using testing_support::ServerProcessOptions;
 
@@ -41,9 +43,7 @@ std::vector<std::pair<std::string, std::string>> Overrides(int iterations) {
   return o;
 }
 
-struct StreamRun {
-  std::vector<int> lag, iterations, rays;  // per INTEGRATED ack, in order
-  std::vector<uint64_t> versions;
+struct StreamRun : testing_support::StreamAcks {
   // Iterations trained between frames: over consecutive acks, the map versions gained (one an
   // iteration) less the later frame's own iterations.
   int64_t Between() const {
@@ -60,29 +60,14 @@ StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, 
   EXPECT_TRUE(client->CreateSession(robot, "maicity", Overrides(300)).ok());
   std::vector<PosedScan> scans;
   for (int i = 0; i < kFrames; ++i) scans.push_back(GroundScan(0.05 * i));
-  std::mutex mu;
   StreamOptions options;
   options.rate_hz = 1.0 / interval_s;
   options.real_time = real_time;
-  options.on_ack = [&](const rim::v1::ScanAck& ack) {
-    if (ack.state() != rim::v1::ScanAck::INTEGRATED) return;
-    std::lock_guard<std::mutex> lock(mu);
-    run.lag.push_back(int(ack.lag_frames()));
-    run.iterations.push_back(int(ack.iterations()));
-    run.rays.push_back(int(ack.rays_per_iteration()));
-    run.versions.push_back(ack.map_version());
-  };
+  options.on_ack = run.Recorder();
   auto summary = client->Session(robot).Stream(scans, options);
   EXPECT_TRUE(summary.ok()) << summary.status();
   if (summary.ok()) EXPECT_EQ(summary->integrated, uint64_t(kFrames));
   return run;
-}
-
-// The median of the second half: once the pace and the costs are known.
-int SecondHalfMedian(std::vector<int> v) {
-  v.erase(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2));
-  std::sort(v.begin(), v.end());
-  return v.empty() ? -1 : v[v.size() / 2];
 }
 
 TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRateDoesNot) {

@@ -6,7 +6,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <mutex>
 #include <string>
 #include <vector>
 
@@ -14,12 +13,15 @@
 #include "rim/config/config.h"
 #include "sim/city_frames.h"
 #include "support/server_process.h"
+#include "support/stream_acks.h"
 
 namespace rim {
 namespace {
 
+using testing_support::Median;
 using testing_support::ServerProcess;
 using testing_support::ServerProcessOptions;
+using StreamRun = testing_support::StreamAcks;
 
 constexpr int kQueueLength = 4;
 
@@ -39,26 +41,14 @@ std::vector<PosedScan> CityDrive(int frames, double period_s) {
   return scans;
 }
 
-struct StreamRun {
-  std::vector<int> iterations, rays, lag;  // per INTEGRATED ack
-  double seconds = 0;                      // from the first scan sent to the last ack
-};
-
 StreamRun Stream(Client* client, const std::string& robot, const std::vector<PosedScan>& scans,
                  double rate_hz, bool real_time) {
   StreamRun run;
   EXPECT_TRUE(client->CreateSession(robot, "maicity").ok());
-  std::mutex mu;
   StreamOptions options;
   options.rate_hz = rate_hz;
   options.real_time = real_time;
-  options.on_ack = [&](const rim::v1::ScanAck& ack) {
-    if (ack.state() != rim::v1::ScanAck::INTEGRATED) return;
-    std::lock_guard<std::mutex> lock(mu);
-    run.iterations.push_back(int(ack.iterations()));
-    run.rays.push_back(int(ack.rays_per_iteration()));
-    run.lag.push_back(int(ack.lag_frames()));
-  };
+  options.on_ack = run.Recorder();
   auto summary = client->Session(robot).Stream(scans, options);
   EXPECT_TRUE(summary.ok()) << summary.status();
   if (summary.ok()) {
@@ -66,11 +56,6 @@ StreamRun Stream(Client* client, const std::string& robot, const std::vector<Pos
     run.seconds = summary->seconds;
   }
   return run;
-}
-
-int Median(std::vector<int> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? -1 : v[v.size() / 2];
 }
 
 TEST(ServerReplayTest, AFlatOutReplayTrainsTheOfflineIterationsAndARealTimeStreamKeepsItsRate) {
