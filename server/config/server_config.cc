@@ -136,64 +136,99 @@ absl::Status ApplyFile(const std::string& path, ServerConfig* c) {
   return absl::OkStatus();
 }
 
-// The settings the command line takes, as the config file's keys (with dashes).
+// The settings the command line takes, as the config file's keys (with dashes), and their help.
 struct Setting {
   const char* name;
-  bool is_switch;  // given alone on the command line (--insecure), true or false in the file
+  bool is_switch;    // given alone on the command line (--insecure), true or false in the file
+  const char* type;  // the value's name in the help
+  const char* help;
 };
 constexpr Setting kSettings[] = {
-    {"config", false},
-    {"listen", false},
-    {"data-dir", false},
-    {"metrics", false},
-    {"http", false},
-    {"web-root", false},
-    {"preset", false},
-    {"max-sessions", false},
-    {"queue-length", false},
-    {"checkpoint-every", false},
-    {"max-query-points", false},
-    {"max-streams", false},
-    {"max-points-per-scan", false},
-    {"warmup-frames", false},
-    {"train-slots", false},
-    {"background-nice", false},
-    {"meshing-cores", false},
-    {"shutdown-deadline", false},
-    {"tokens", false},
-    {"tls-cert", false},
-    {"tls-key", false},
-    {"tls-client-ca", false},
-    {"replica-id", false},
-    {"shared-sessions", true},
-    {"insecure", true},
-    {"host-memory-budget-bytes", false},
+    {"listen", false, "ADDR", "host:port to serve gRPC on (default 127.0.0.1:50051)"},
+    {"data-dir", false, "DIR", "sessions, checkpoints and write-ahead logs (required)"},
+    {"metrics", false, "ADDR", "host:port of the Prometheus /metrics endpoint (default none)"},
+    {"config", false, "FILE",
+     "`key = value` lines ('#' comments), keys named like the flags; the\n"
+     "flags override it"},
+    {"http", false, "ADDR", "host:port of the browser dashboard and its JSON API (default none)"},
+    {"web-root", false, "DIR", "the dashboard's files (default: found next to the binary)"},
+    {"preset", false, "NAME", "the sessions' default config preset (default maicity)"},
+    {"max-sessions", false, "N", "sessions open at once (default 16)"},
+    {"queue-length", false, "N", "scans queued per session before backpressure (default 8)"},
+    {"max-query-points", false, "N", "points in one query (default 1048576)"},
+    {"max-points-per-scan", false, "N", "points in one scan (default 2097152)"},
+    {"max-streams", false, "N", "open scan, query and watch streams (default 128)"},
+    {"checkpoint-every", false, "FRAMES",
+     "a checkpoint every FRAMES frames (default 100, 0 = only on save)"},
+    {"host-memory-budget-bytes", false, "N", "host memory for all sessions (default 0 = none)"},
+    {"warmup-frames", false, "N",
+     "frames trained at start (default 2; health is NOT_SERVING until\ndone)"},
+    {"shutdown-deadline", false, "SECONDS", "SIGTERM: in-flight calls get this long (default 10)"},
+    {"train-slots", false, "N", "frames training at once (default 0 = cores / 2)"},
+    {"background-nice", false, "N",
+     "0-19, default 5: training and meshing yield the cores to queries"},
+    {"meshing-cores", false, "F",
+     "CPU-seconds per second all watchers' meshing may use (default a\n"
+     "quarter of the cores, 0 = no budget)"},
+    {"tokens", false, "FILE", "`ROLE SUBJECT SHA256HEX` lines; callers must present a token"},
+    {"tls-cert", false, "FILE", "PEM certificate chain: serve TLS (with --tls-key)"},
+    {"tls-key", false, "FILE", "PEM private key of --tls-cert"},
+    {"tls-client-ca", false, "FILE", "require client certificates signed by it (mTLS)"},
+    {"insecure", true, "", "serve a non-loopback --listen without --tokens"},
+    {"shared-sessions", true, "",
+     "replicas share --data-dir: open a session no live replica holds on\n"
+     "its first call"},
+    {"replica-id", false, "NAME",
+     "this replica's name in session leases (default: host name and\n"
+     "process id)"},
 };
+
+constexpr char kSynopsis[] =
+    "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE] [flags]\n"
+    "       rim_server --hash-token TOKEN|-   (SHA-256 for a --tokens line; '-': from stdin)";
+
+// The help shows each flag by its name with dashes; the underscored one (--data_dir) also works.
+class ServerHelp : public cli::HelpFormatter {
+ public:
+  using cli::HelpFormatter::HelpFormatter;
+  std::string make_option_name(const CLI::Option* option, bool) const override {
+    std::string names;
+    for (const std::string& s : option->get_snames()) absl::StrAppend(&names, "-", s, ",");
+    return absl::StrCat(names, "--", option->get_lnames().front());
+  }
+};
+
+// rim_server's flags; each given one lands in GIVEN (setting with dashes -> value, the last one).
+void AddFlags(CLI::App& app, std::map<std::string, std::string>* given) {
+  auto help = std::make_shared<ServerHelp>(kSynopsis, "");
+  help->column_width(32);
+  app.formatter(help);
+  app.set_help_flag("-h,--help", "print this help and exit");
+  app.footer("access control and TLS: docs/security.md");
+  for (const Setting& setting : kSettings) {
+    std::string names = absl::StrCat("--", setting.name);
+    if (const std::string underscored = absl::StrReplaceAll(setting.name, {{"-", "_"}});
+        underscored != setting.name)
+      absl::StrAppend(&names, ",--", underscored);
+    CLI::Option* option = app.add_option_function<std::string>(
+        names,
+        [given, name = std::string(setting.name)](const std::string& value) {
+          (*given)[name] = value;
+        },
+        setting.help);
+    option->type_name(setting.type)->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+    // --insecure alone means true; --insecure=false as the config file's `insecure = false`.
+    if (setting.is_switch) option->expected(0, 1);
+  }
+}
 
 }  // namespace
 
 std::string ServerUsage() {
-  return "usage: rim_server --listen ADDR --data-dir DIR [--metrics ADDR] [--config FILE]\n"
-         "                  [--http ADDR (browser dashboard and JSON API) [--web-root DIR]]\n"
-         "                  [--preset NAME] [--max-sessions N] [--queue-length N]\n"
-         "                  [--max-query-points N] [--max-points-per-scan N]\n"
-         "                  [--max-streams N (open scan, query and watch streams; default 128)]\n"
-         "                  [--checkpoint-every FRAMES (default 100, 0 = only on save)]\n"
-         "                  [--host-memory-budget-bytes N (default 0 = none)]\n"
-         "                  [--warmup-frames N (default 2; health is NOT_SERVING until done)]\n"
-         "                  [--shutdown-deadline SECONDS (default 10)]\n"
-         "                  [--train-slots N (frames training at once; default 0 = cores / 2)]\n"
-         "                  [--background-nice N (0-19, default 5: training and meshing yield\n"
-         "                   the cores to queries)]\n"
-         "                  [--meshing-cores F (CPU-seconds per second all watchers' meshing\n"
-         "                   may use; default a quarter of the cores, 0 = no budget)]\n"
-         "                  [--tokens FILE] [--tls-cert FILE --tls-key FILE [--tls-client-ca "
-         "FILE]]\n"
-         "                  [--insecure (serve a non-loopback --listen without --tokens)]\n"
-         "                  [--shared-sessions (replicas share --data-dir: open a session no\n"
-         "                   live replica holds on its first call)] [--replica-id NAME]\n"
-         "       rim_server --hash-token TOKEN|-   (SHA-256 for a --tokens line; '-': from stdin)\n"
-         "access control and TLS: docs/security.md\n";
+  CLI::App app("", "rim_server");
+  std::map<std::string, std::string> given;
+  AddFlags(app, &given);
+  return app.help();
 }
 
 std::string ServerConfig::ToString() const {
@@ -233,19 +268,7 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
   // with underscores (--data_dir), as the config file's keys do.
   CLI::App app("", "rim_server");
   std::map<std::string, std::string> given;  // setting (with dashes) -> value
-  for (const Setting& setting : kSettings) {
-    std::string names = absl::StrCat("--", setting.name);
-    if (const std::string underscored = absl::StrReplaceAll(setting.name, {{"-", "_"}});
-        underscored != setting.name)
-      absl::StrAppend(&names, ",--", underscored);
-    CLI::Option* option = app.add_option_function<std::string>(
-        names, [&given, name = std::string(setting.name)](const std::string& value) {
-          given[name] = value;
-        });
-    option->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
-    // --insecure alone means true; --insecure=false as the config file's `insecure = false`.
-    if (setting.is_switch) option->expected(0, 1);
-  }
+  AddFlags(app, &given);
   if (absl::Status parsed = cli::Parse(app, argc, argv); !parsed.ok()) {
     // rim_server's main prints the usage for -h/--help before it asks for the config.
     if (absl::IsCancelled(parsed)) return absl::InvalidArgumentError("-h/--help is not a setting");
@@ -253,7 +276,7 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
   }
   std::vector<std::pair<std::string, std::string>> flags;
   for (const auto& [name, value] : given) {
-    const bool is_switch = name == "insecure" || name == "shared-sessions";
+    const bool is_switch = name == "insecure" || name == "shared-sessions";  // given alone
     flags.emplace_back(name, is_switch && value.empty() ? "true" : value);
   }
   ServerConfig config;

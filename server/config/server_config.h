@@ -64,7 +64,8 @@ struct ServerConfig {
 // a missing --data-dir, or TLS flags that do not go together.
 absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv);
 
-// Usage text for --help and errors.
+// Usage text for --help and errors: the synopsis and every flag with its description, from the
+// flags' declarations (CLI11).
 std::string ServerUsage();
 
 }  // namespace rim::server
