@@ -13,6 +13,7 @@
 // The state is published as window.rimDashboard for tests and benchmarks (see publish()).
 // A token given as #token=... in the URL is sent as `Authorization: Bearer ...`.
 import { DRACOLoader } from 'three/addons/loaders/DRACOLoader.js';
+import { DEFAULT_LEVEL_M, levelValue, nearestLevel, urlLevel } from './levels.js';
 import { Panel } from './panel.js';
 import { Viewer } from './viewer.js';
 
@@ -27,9 +28,6 @@ const MAX_ERRORS = 200;  // distinct messages kept; repeats are counted
 const MAX_QUIET_RETRIES = 5;
 const AUTO_FIT_MS = 250; // while the first tiles load, the view is refit at most this often
 const DECODER_DIR = new URL('vendor/three/addons/libs/draco/', document.baseURI).href;
-// The level of detail asked for by default (metres): the level nearest it that the sessions offer.
-// A coarse level loads and draws several times faster than the finest (docs/service.md).
-const DEFAULT_LEVEL_M = 0.2;
 
 // A failed request: status is the HTTP status, or 0 when none came (network error, timeout).
 class FetchError extends Error {
@@ -78,38 +76,6 @@ class TileModel {
     return !this.session.removed && !this.dropped && this.shownVersion < this.version
       && this.failedVersion < this.version;
   }
-}
-
-// ---- Levels of detail --------------------------------------------------------------------------
-
-// A level as the page names it: the server's float32 metres to the shortest decimal (0.2, not
-// 0.20000000298023224), so that equal levels of different sessions compare equal.
-function levelValue(x) {
-  return Number(Number(x).toPrecision(6));
-}
-
-// The level of `levels` nearest `want` (metres; 0: the finest); ties go to the finer one.
-// null when there are none.
-function nearestLevel(levels, want) {
-  if (levels.length === 0) return null;
-  const sorted = [...levels].sort((a, b) => a - b);
-  if (!(want > 0)) return sorted[0];
-  let best = sorted[0];
-  for (const l of sorted) if (Math.abs(l - want) < Math.abs(best - want)) best = l;
-  return best;
-}
-
-// The `resolution_m` of the page's URL query (?resolution_m=0.05): a number >= 0, or null when
-// absent or not one (then the default applies).
-function urlLevel() {
-  const text = new URLSearchParams(location.search).get('resolution_m');
-  if (text === null || text.trim() === '') return null;
-  const value = Number(text);
-  if (!Number.isFinite(value) || value < 0) {
-    console.warn(`rim dashboard: ignoring resolution_m=${text} in the URL (not metres >= 0)`);
-    return null;
-  }
-  return value;
 }
 
 const state = {

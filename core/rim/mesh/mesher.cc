@@ -1,15 +1,11 @@
 #include "rim/mesh/mesher.h"
 
-#if defined(__x86_64__)
-#include <immintrin.h>
-#define RIM_MESH_AVX2 1
-#endif
-
 #include <algorithm>
 #include <cmath>
 #include <mutex>
 
 #include "absl/strings/str_cat.h"
+#include "rim/mesh/grid_encoder.h"
 #include "rim/model/encoder.h"
 
 namespace rim {
@@ -39,14 +35,9 @@ struct MeshBlockCache::Piece {
 namespace {
 
 using Piece = MeshBlockCache::Piece;
-
-// The mesh grid of a resolution: `r` cells per finest voxel edge (a resolution that divides the
-// leaf), or one cell per `s` finest voxels (a coarser level: a multiple of the leaf). One of the
-// two is 1. Grid points are numbered in steps of leaf·s/r from the world origin.
-struct GridSpec {
-  int r = 1, s = 1;
-  int CellsPerBlock() const { return kMeshBlockVoxels * r / s; }
-};
+using mesh_internal::BlockScratch;
+using mesh_internal::GridEncoder;
+using mesh_internal::GridSpec;
 
 // The share of a coarse cell's finest voxels that must be observed for the cell to be meshed.
 constexpr double kCoarseShare = 0.25;
@@ -79,14 +70,6 @@ TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
   return out;
 }
 
-// Buffers reused from block to block by one meshing call: nothing of a block's dense size is
-// allocated or cleared per block.
-struct BlockScratch {
-  std::vector<float> rows[kMaxLevels];  // GridEncoder's lattice rows, written before read
-  std::vector<int32_t> point_index;     // BlockGrid's point table, all -1 between blocks
-  std::vector<float> features;
-};
-
 uint64_t HashVoxels(const std::vector<Int3>& voxels) {
   uint64_t h = 0x9E3779B97F4A7C15ull ^ voxels.size();
   for (const Int3& g : voxels) {
@@ -97,163 +80,6 @@ uint64_t HashVoxels(const std::vector<Int3>& voxels) {
   }
   return h;
 }
-
-// The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
-// lies at m·s / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
-// and the remainder over a power of two times r. Each lattice row is fetched once per block (on
-// first use) instead of once per point and corner. The result is a function of the point alone,
-// so blocks and tiles that share a point compute the same bits for it.
-class GridEncoder {
- public:
-  GridEncoder(const MapGeometry& geo, GridSpec spec, const Int3& point0, int n,
-              FeatureReader& reader, BlockScratch& scratch)
-      : L_(geo.levels()), D_(geo.feature_dim()), reader_(reader) {
-    const int mult = spec.s;
-    for (int l = 0; l < L_; ++l) {
-      Level& lv = levels_[l];
-      lv.scale = spec.r << l;
-      lv.lo = FloorDiv(Int3(point0 * mult), Int3::Constant(lv.scale));
-      const Int3 hi =
-          FloorDiv(Int3((point0 + Int3::Constant(n - 1)) * mult), Int3::Constant(lv.scale)) +
-          Int3::Ones();
-      lv.dims = hi - lv.lo + Int3::Ones();
-      const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
-      // Rows are written before they are read (`have`): the buffer is reused from block to
-      // block without clearing.
-      std::vector<float>& rows = scratch.rows[l];
-      if (rows.size() < count * D_) rows.resize(count * D_);
-      lv.rows = rows.data();
-      lv.have.assign(count, 0);
-      // Per axis and block-local coordinate: the lattice cell (from lo), as a row-index stride
-      // multiple, and the weights of its two sides, computed once per block instead of per point
-      // (the same arithmetic, so the same bits).
-      const size_t stride[3] = {size_t(lv.dims.y()) * lv.dims.z(), size_t(lv.dims.z()), 1};
-      const float inv = 1.f / float(lv.scale);
-      for (int a = 0; a < 3; ++a) {
-        lv.axis[a].resize(size_t(n));
-        for (int t = 0; t < n; ++t) {
-          const int m = (point0[a] + t) * mult;
-          const int base = FloorDiv(m, lv.scale);
-          const float f = float(m - base * lv.scale) * inv;
-          Axis& e = lv.axis[a][size_t(t)];
-          e.offset = size_t(base - lv.lo[a]) * stride[a];
-          e.w[0] = 1.f - f;
-          e.w[1] = f;
-          for (int c = 0; c < 8; ++c) e.lanes[c] = e.w[c >> (2 - a) & 1];
-        }
-      }
-      lv.corner_offset[0] = 0;
-      for (int c = 1; c < 8; ++c)
-        lv.corner_offset[c] =
-            (c >> 2 & 1) * stride[0] + (c >> 1 & 1) * stride[1] + (c & 1) * stride[2];
-    }
-  }
-
-  // Features (L·D floats per point) at the block-local grid points.
-  void EncodeAll(const std::vector<Int3>& points, float* out) {
-#ifdef RIM_MESH_AVX2
-    static const bool avx2 = __builtin_cpu_supports("avx2");
-    if (D_ == 8 && avx2) return EncodeAvx2(points, out);
-#endif
-    if (D_ == 8)
-      EncodeAll<8>(points, out);
-    else
-      EncodeAll<0>(points, out);
-  }
-
- private:
-  struct Axis {
-    size_t offset;  // the lattice cell's index part along this axis
-    float w[2];     // weights of the cell's lower and upper side: 1 − f and f
-    // w of each corner c = 4·cx + 2·cy + cz: w[cx] on the x axis, w[cy] on y, w[cz] on z.
-    alignas(32) float lanes[8];
-  };
-  struct Level {
-    int scale = 1;  // r·2^l: the level's voxel edge in 1/r finest voxels
-    Int3 lo = Int3::Zero(), dims = Int3::Zero();
-    float* rows = nullptr;  // count·D floats of BlockScratch::rows[level]
-    std::vector<uint8_t> have;
-    std::vector<Axis> axis[3];  // per axis and block-local coordinate
-    size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
-  };
-
-#ifdef RIM_MESH_AVX2
-  // EncodeAll<8> with the eight corner weights in one register: the same products in the same
-  // order ((tx·ty)·tz per lane), then the corners of nonzero weight in ascending order from a
-  // bit mask, so the sums are the same as the generic loop's.
-  __attribute__((target("avx2"))) void EncodeAvx2(const std::vector<Int3>& points, float* out) {
-    alignas(32) float w[8];
-    for (const Int3& m : points) {
-      for (int l = 0; l < L_; ++l, out += 8) {
-        Level& lv = levels_[l];
-        const Axis& ax = lv.axis[0][size_t(m.x())];
-        const Axis& ay = lv.axis[1][size_t(m.y())];
-        const Axis& az = lv.axis[2][size_t(m.z())];
-        const size_t cell = ax.offset + ay.offset + az.offset;
-        const __m256 wc =
-            _mm256_mul_ps(_mm256_mul_ps(_mm256_load_ps(ax.lanes), _mm256_load_ps(ay.lanes)),
-                          _mm256_load_ps(az.lanes));
-        _mm256_store_ps(w, wc);
-        unsigned mask =
-            unsigned(_mm256_movemask_ps(_mm256_cmp_ps(wc, _mm256_setzero_ps(), _CMP_NEQ_UQ)));
-        __m256 o = _mm256_setzero_ps();
-        while (mask != 0) {
-          const int c = __builtin_ctz(mask);
-          mask &= mask - 1;
-          const float* row = Row(lv, cell + lv.corner_offset[c]);
-          o = _mm256_add_ps(o, _mm256_mul_ps(_mm256_set1_ps(w[c]), _mm256_loadu_ps(row)));
-        }
-        _mm256_storeu_ps(out, o);
-      }
-    }
-  }
-#endif
-
-  // For each level and corner c = 4·cx + 2·cy + cz in order, adds weight·row to the level's D
-  // outputs (starting from zero), the weight being (tx·ty)·tz; corners of weight zero (the point
-  // lies on the lattice plane of the other side) add nothing: +0 plus ±0 is +0, and finite sums
-  // keep their bits, so their rows are not read. DC = D when known at compile time, else 0.
-  template <int DC>
-  __attribute__((always_inline)) inline void EncodeAll(const std::vector<Int3>& points,
-                                                       float* out) {
-    const int D = DC > 0 ? DC : D_;
-    for (const Int3& m : points) {
-      for (int l = 0; l < L_; ++l, out += D) {
-        Level& lv = levels_[l];
-        const Axis& ax = lv.axis[0][size_t(m.x())];
-        const Axis& ay = lv.axis[1][size_t(m.y())];
-        const Axis& az = lv.axis[2][size_t(m.z())];
-        const size_t cell = ax.offset + ay.offset + az.offset;
-        float o[DC > 0 ? DC : 64];
-        for (int d = 0; d < D; ++d) o[d] = 0.f;
-        for (int c = 0; c < 8; ++c) {
-          const float tx = ax.w[c >> 2 & 1], ty = ay.w[c >> 1 & 1], tz = az.w[c & 1];
-          const float wc = tx * ty * tz;
-          if (wc == 0.f) continue;
-          const float* row = Row(lv, cell + lv.corner_offset[c]);
-          for (int d = 0; d < D; ++d) o[d] += wc * row[d];
-        }
-        for (int d = 0; d < D; ++d) out[d] = o[d];
-      }
-    }
-  }
-
-  const float* Row(Level& lv, size_t i) {
-    float* row = lv.rows + i * D_;
-    if (!lv.have[i]) [[unlikely]] {
-      // The row's lattice point, from its index.
-      const int dz = lv.dims.z(), dyz = lv.dims.y() * dz;
-      const Int3 g(int(i / size_t(dyz)), int(i % size_t(dyz)) / dz, int(i % size_t(dz)));
-      std::copy_n(reader_.Get(int(&lv - levels_), lv.lo + g), D_, row);
-      lv.have[i] = 1;
-    }
-    return row;
-  }
-
-  const int L_, D_;
-  FeatureReader& reader_;
-  Level levels_[kMaxLevels];
-};
 
 // One block's mesh grid: the cells of its observed voxels at r cells per voxel edge (or the coarse
 // cells of s finest voxels that hold observed ones), their grid points (dense-indexed in the
