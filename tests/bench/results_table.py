@@ -487,9 +487,6 @@ TABLES = {
             LEVELS),
         Row("Draco bytes of a pushed tile at 0.2 m, share of the 5 cm tile's",
             lambda r: level_bytes_share(r, 20), F2, "–", ("≤ 0.33", ("<=", 0.33)), LEVELS),
-        Row("the finest level, meshing alone (no Draco), an earlier build on another host, ms a "
-            "frame", lambda r: r.values(MESHING, "meshing_ms_per_frame"), F1,
-            "–", None, [MESHING]),
         Row("a tile re-encoded (its changed blocks meshed, then Draco), ms",
             lambda r: sum_ranges(r, MESHING, ["tile_mesh_ms", "tile_draco_ms"]), {"digits": 0},
             "–", ("≤ 50", ("<=", 50)), [MESHING]),
