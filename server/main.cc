@@ -48,12 +48,7 @@ void OnShutdownSignal(int signal) {
 
 // rim_server --hash-token TOKEN|-: the digest for a --tokens line ('-' reads the token from stdin,
 // which keeps it out of the shell history and the process list).
-int HashToken(int argc, char** argv) {
-  if (argc != 3) {
-    std::cerr << "usage: rim_server --hash-token TOKEN|-\n";
-    return 2;
-  }
-  std::string token = argv[2];
+int HashToken(std::string token) {
   if (token == "-" && !std::getline(std::cin, token)) token.clear();
   if (token.empty()) {
     std::cerr << "rim_server: --hash-token: empty token\n";
@@ -64,14 +59,12 @@ int HashToken(int argc, char** argv) {
 }
 
 int Run(int argc, char** argv) {
-  if (argc >= 2 && std::string(argv[1]) == "--hash-token") return HashToken(argc, argv);
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << rim::server::ServerUsage();
-      return 0;
-    }
-  }
   auto config = rim::server::ParseServerConfig(argc, argv);
+  if (absl::IsCancelled(config.status())) {  // -h/--help
+    std::cout << rim::server::ServerUsage();
+    return 0;
+  }
+  if (config.ok() && config->hash_token) return HashToken(*config->hash_token);
   if (!config.ok()) {
     std::cerr << "rim_server: " << config.status().message() << "\n" << rim::server::ServerUsage();
     return 2;

@@ -220,6 +220,11 @@ void AddFlags(CLI::App& app, std::map<std::string, std::string>* given) {
     // --insecure alone means true; --insecure=false as the config file's `insecure = false`.
     if (setting.is_switch) option->expected(0, 1);
   }
+  // Not a setting: a mode of its own (ParseServerConfig).
+  app.add_option_function<std::string>(
+         "--hash-token", [given](const std::string& value) { (*given)["hash-token"] = value; },
+         "print TOKEN's digest for a --tokens line and exit ('-': from stdin)")
+      ->type_name("TOKEN|-");
 }
 
 }  // namespace
@@ -269,10 +274,13 @@ absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv) {
   CLI::App app("", "rim_server");
   std::map<std::string, std::string> given;  // setting (with dashes) -> value
   AddFlags(app, &given);
-  if (absl::Status parsed = cli::Parse(app, argc, argv); !parsed.ok()) {
-    // rim_server's main prints the usage for -h/--help before it asks for the config.
-    if (absl::IsCancelled(parsed)) return absl::InvalidArgumentError("-h/--help is not a setting");
-    return parsed;
+  // Cancelled for -h/--help: the caller prints ServerUsage().
+  if (absl::Status parsed = cli::Parse(app, argc, argv); !parsed.ok()) return parsed;
+  if (auto it = given.find("hash-token"); it != given.end()) {
+    if (given.size() != 1) return absl::InvalidArgumentError("--hash-token takes no other flag");
+    ServerConfig config;
+    config.hash_token = it->second;
+    return config;
   }
   std::vector<std::pair<std::string, std::string>> flags;
   for (const auto& [name, value] : given) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -20,6 +21,8 @@ struct ServerConfig {
   // ../share/rim/web when installed).
   std::string web_root;
   std::string config_file;  // --config
+  // --hash-token TOKEN|-: print the token's digest and exit (no server is started).
+  std::optional<std::string> hash_token;
   std::string default_preset = "maicity";
   int max_sessions = 16;
   int queue_length = 8;
@@ -61,7 +64,9 @@ struct ServerConfig {
 // Parses argv with CLI11 (rim/base/flags.h: flags as `--name value` or `--name=value`, also with
 // underscores, `--data_dir`; --insecure alone means true); a --config file is read first and the
 // flags override it. INVALID_ARGUMENT naming the flag for an unknown flag, a missing or bad value,
-// a missing --data-dir, or TLS flags that do not go together.
+// a missing --data-dir, or TLS flags that do not go together. CANCELLED for -h/--help (print
+// ServerUsage()). `--hash-token TOKEN|-`, alone, gives a config with hash_token set and nothing
+// else read.
 absl::StatusOr<ServerConfig> ParseServerConfig(int argc, char** argv);
 
 // Usage text for --help and errors: the synopsis and every flag with its description, from the
