@@ -75,17 +75,7 @@ void AddFlags(CLI::App& app, Args& a) {
                       "preset = X line chooses)")
            ->type_name("NAME"));
   last(app.add_option("--out", a.out, "output folder (required)")->type_name("DIR"));
-  last(app.add_option_function<std::string>(
-              "--frames",
-              [&a](const std::string& range) {
-                std::vector<std::string> parts = absl::StrSplit(range, ':');
-                if (parts.size() != 2 ||
-                    (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
-                    (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
-                  throw cli::UsageError(absl::StrCat("--frames '", range, "' is not A:B"));
-              },
-              "frames A to B (B excluded; either may be left out: all by default)")
-           ->type_name("A:B"));
+  cli::AddFrameRange(app, &a.first, &a.last);
   app.add_option("--set", a.overrides,
                  "a config override, applied after the preset or the config file; one per\n"
                  "--set, repeatable")

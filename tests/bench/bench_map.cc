@@ -194,9 +194,8 @@ void BM_MeshUpdate(benchmark::State& state) {
     for (const TileInfo& tile : mapper.ListTiles(since)) {
       mesh_clock.Start();
       MeshUpdateStats stats;
-      absl::StatusOr<Mesh> m =
-          incremental ? mapper.MeshTile(tile.key, level, &stats)
-                      : mapper.ExtractMeshTile(tile.key, level);
+      absl::StatusOr<Mesh> m = incremental ? mapper.MeshTile(tile.key, level, &stats)
+                                           : mapper.ExtractMeshTile(tile.key, level);
       mesh_clock.Stop();
       CheckOk(m.status(), "MeshTile");
       uint64_t& generation = generations[{tile.key.x(), tile.key.y(), tile.key.z()}];

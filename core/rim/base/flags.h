@@ -40,6 +40,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 
 namespace rim::cli {
 
@@ -101,6 +102,24 @@ inline CLI::Validator NumberIn(double lo, double hi, bool lo_inclusive, Message 
 inline CLI::Validator Finite(Message message) {
   return NumberIn(-std::numeric_limits<double>::max(), std::numeric_limits<double>::max(), true,
                   std::move(message));
+}
+
+// `--frames A:B`: frames A to B, B excluded, either side left out keeps *FIRST or *LAST as it
+// is (the caller's defaults: 0 and -1 for "to the end"). A usage error names the flag; the last
+// one given counts.
+inline CLI::Option* AddFrameRange(CLI::App& app, long* first, long* last) {
+  return app
+      .add_option_function<std::string>(
+          "--frames",
+          [first, last](const std::string& range) {
+            std::vector<std::string> parts = absl::StrSplit(range, ':');
+            if (parts.size() != 2 || (!parts[0].empty() && !absl::SimpleAtoi(parts[0], first)) ||
+                (!parts[1].empty() && !absl::SimpleAtoi(parts[1], last)) || *first < 0)
+              throw UsageError(absl::StrCat("--frames '", range, "' is not A:B"));
+          },
+          "frames A to B (B excluded; either may be left out: all by default)")
+      ->type_name("A:B")
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
 }
 
 // Help as rim writes it: SYNOPSIS (the "usage:" lines) and DESCRIPTION first, then CLI11's list

@@ -22,7 +22,6 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_split.h"
 #include "rim/base/binary_io.h"
 #include "rim/base/flags.h"
 #include "rim/base/status_macros.h"
@@ -57,17 +56,7 @@ void AddFlags(CLI::App& app, Args& a) {
   };
   app.add_option("DATASET", a.dataset, "the dataset, any layout rim_map reads")->type_name("");
   last(app.add_option("--out", a.out, "output folder: mesh.ply and timing.json")->type_name("DIR"));
-  last(app.add_option_function<std::string>(
-              "--frames",
-              [&a](const std::string& range) {
-                std::vector<std::string> parts = absl::StrSplit(range, ':');
-                if (parts.size() != 2 ||
-                    (!parts[0].empty() && !absl::SimpleAtoi(parts[0], &a.first)) ||
-                    (!parts[1].empty() && !absl::SimpleAtoi(parts[1], &a.last)) || a.first < 0)
-                  throw cli::UsageError(absl::StrCat("--frames '", range, "' is not A:B"));
-              },
-              "frames A to B (B excluded; either may be left out: all by default)")
-           ->type_name("A:B"));
+  cli::AddFrameRange(app, &a.first, &a.last);
   last(app.add_option("--voxel", a.options.voxel_m, "voxel size in metres (default 0.1)")
            ->type_name("M")
            ->transform(finite("--voxel")));
