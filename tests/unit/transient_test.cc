@@ -6,6 +6,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <mutex>
 
 #include "rim/config/config.h"
@@ -107,6 +108,37 @@ TEST(TransientTest, AWallSeenThenARayThroughItIsDropped) {
   const auto [static_dropped, statics] = DroppedWhere(later, &again, static_);
   ASSERT_GT(statics, 10000);
   EXPECT_EQ(static_dropped, 0) << "of " << statics;
+}
+
+// A person's lowest part stands on the road: the rays below it end on the road in front of where
+// it stood, so not every return about it ends beyond. The road around its direction is one plane
+// that passes it by more than the margin, and that decides.
+TEST(TransientTest, TheFeetOfAPersonWhoWalkedOffAreDropped) {
+  for (float distance : {8.f, 12.f, 18.f}) {
+    AnalyticScene before = Ground();
+    before.cylinders.push_back({Eigen::Vector2f(distance, 0.f), 0.27f, -0.05f, 1.7f});
+    auto feet = [&](const Vec3f& p) {
+      return (p.head<2>() - Eigen::Vector2f(distance, 0)).norm() < 0.35f && p.z() > 0.12f &&
+             p.z() < 0.4f;
+    };
+    auto ground = [](const Vec3f& p) { return p.z() < 0.05f; };
+    const Scan later = Take(Ground(), PoseAt(1.f, 0.3f), 2, CarLidar(0.03f));
+    PointBuffer buffer = BufferOf(Take(before, PoseAt(0, 0), 1, CarLidar(0.03f)));
+    const auto [feet_dropped, all_feet] = DroppedWhere(later, &buffer, feet);
+    ASSERT_GT(all_feet, 10) << distance;
+    EXPECT_GE(feet_dropped, int(0.9 * all_feet))
+        << feet_dropped << " of " << all_feet << " at " << distance << " m";
+    TransientConfig no_fit;
+    no_fit.surface_fit = false;
+    PointBuffer again = BufferOf(Take(before, PoseAt(0, 0), 1, CarLidar(0.03f)));
+    const int without = DroppedWhere(later, &again, feet, no_fit).first;
+    EXPECT_LT(without, int(0.8 * all_feet)) << "without the fit, at " << distance << " m";
+    std::printf("feet at %.0f m: %d of %d dropped (%d without the fit)\n", distance, feet_dropped,
+                all_feet, without);
+    PointBuffer road = BufferOf(Take(before, PoseAt(0, 0), 1, CarLidar(0.03f)));
+    const auto [road_dropped, roads] = DroppedWhere(later, &road, ground);
+    EXPECT_EQ(road_dropped, 0) << "of " << roads << " road points, at " << distance << " m";
+  }
 }
 
 TEST(TransientTest, DroppedPointsJoinTheClearedSetAndExpire) {
@@ -261,7 +293,10 @@ TEST(TransientTest, BadConfigValuesNameTheField) {
   for (const char* kv :
        {"transient.margin_m=0", "transient.bin_deg=NaN", "transient.window_elevation_bins=0",
         "transient.max_range_m=0.5", "transient.period_frames=0", "transient.clear_label_m=-1",
-        "transient.clear_samples_per_iteration=-3", "transient.max_cleared_points=-1"}) {
+        "transient.clear_samples_per_iteration=-3", "transient.max_cleared_points=-1",
+        "transient.fit_rms_m=0", "transient.fit_rms_per_m=NaN",
+        "transient.fit_normal_margin_m=-0.1", "transient.near_m=2", "transient.near_bins=-1",
+        "transient.surface_fit=maybe", "transient.empty_is_free=2"}) {
     auto config = MakePreset("maicity");
     ASSERT_TRUE(config.ok());
     const absl::Status s = ApplyOverrides({kv}, &*config);

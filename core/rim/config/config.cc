@@ -70,6 +70,13 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.window_min_m", c.transient.window_min_m);
   v("transient.margin_m", c.transient.margin_m);
   v("transient.margin_per_m", c.transient.margin_per_m);
+  v("transient.surface_fit", c.transient.surface_fit);
+  v("transient.fit_rms_m", c.transient.fit_rms_m);
+  v("transient.fit_rms_per_m", c.transient.fit_rms_per_m);
+  v("transient.fit_normal_margin_m", c.transient.fit_normal_margin_m);
+  v("transient.near_m", c.transient.near_m);
+  v("transient.near_bins", c.transient.near_bins);
+  v("transient.empty_is_free", c.transient.empty_is_free);
   v("transient.min_range_m", c.transient.min_range_m);
   v("transient.max_range_m", c.transient.max_range_m);
   v("transient.period_frames", c.transient.period_frames);
@@ -234,6 +241,16 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.margin_m", "must be in [0.05, 10] m");
   if (!(tr.margin_per_m >= 0.f && tr.margin_per_m <= 1.f))
     return Bad("transient.margin_per_m", "must be in [0, 1]");
+  if (!(tr.fit_rms_m > 0.f && tr.fit_rms_m <= 1.f))
+    return Bad("transient.fit_rms_m", "must be in (0, 1] m");
+  if (!(tr.fit_rms_per_m >= 0.f && tr.fit_rms_per_m <= 0.1f))
+    return Bad("transient.fit_rms_per_m", "must be in [0, 0.1]");
+  if (!(tr.fit_normal_margin_m >= 0.f && tr.fit_normal_margin_m <= 2.f))
+    return Bad("transient.fit_normal_margin_m", "must be in [0, 2] m");
+  if (!(tr.near_m >= 0.f && tr.near_m <= 1.f))
+    return Bad("transient.near_m", "must be in [0, 1] m");
+  if (!(tr.near_bins >= 0.f && tr.near_bins <= 10.f))
+    return Bad("transient.near_bins", "must be in [0, 10]");
   if (!(tr.min_range_m >= 0.f && tr.max_range_m > tr.min_range_m && tr.max_range_m <= 1000.f))
     return Bad("transient.max_range_m", "must be in (transient.min_range_m, 1000] m");
   if (tr.period_frames < 1 || tr.period_frames > 1000)

@@ -123,6 +123,25 @@ struct TransientConfig {
   // Every return in the window must end at least margin_m + margin_per_m · range beyond it.
   float margin_m = 0.3f;
   float margin_per_m = 0.01f;
+  // Where some returns in the window end before that, the scan's surface around the point's
+  // direction decides: a plane fitted to the window's returns (1/range is linear in the direction
+  // for any plane), when they fit it within fit_rms_m + fit_rms_per_m · range (one surface, no
+  // depth edge), must pass the point by the same margin. Off (false): those points are kept.
+  bool surface_fit = true;
+  float fit_rms_m = 0.06f;
+  float fit_rms_per_m = 0.002f;
+  // ... and passes it by at least this along the plane's normal.
+  float fit_normal_margin_m = 0.1f;
+  // Either way, a return of the later scan within near_m + near_bins · (the bin's width at the
+  // point's range) of the point says something is still there (a thin pole's hits), and the point
+  // is kept.
+  float near_m = 0.08f;
+  float near_bins = 0.6f;
+  // A direction the sensor fired in (a row of the range image that holds returns elsewhere) that
+  // brought nothing back within the scan's range counts as a return at that range: the sky
+  // behind a person seen along the street. Off: such bins are no evidence (a sensor whose beams
+  // often bring nothing back from dark or glass surfaces).
+  bool empty_is_free = true;
   // Points nearer or farther than this from the sensor are not judged.
   float min_range_m = 1.f;
   float max_range_m = 40.f;

@@ -46,6 +46,15 @@ RangeImage::RangeImage(float bin_deg) {
   ne_ = int(std::ceil(kPi / bin_rad));
 }
 
+void RangeImage::PlaceOf(const Vec3f& d, float* azimuth, float* elevation) const {
+  const float az = FastAtan2(d.y(), d.x());
+  const float el = FastAtan2(d.z(), std::sqrt(d.x() * d.x() + d.y() * d.y()));
+  float a = (az + kPi) * inv_bin_rad_;
+  if (a >= float(na_)) a -= float(na_);
+  *azimuth = std::max(a, 0.f);
+  *elevation = std::clamp((el + 0.5f * kPi) * inv_bin_rad_, 0.f, float(ne_) - 1e-3f);
+}
+
 void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
   const float az = FastAtan2(d.y(), d.x());                                     // (−π, π]
   const float el = FastAtan2(d.z(), std::sqrt(d.x() * d.x() + d.y() * d.y()));  // [−π/2, π/2]
@@ -59,6 +68,7 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
                       WorkerPool* pool) {
   const size_t n = points_S.size();
   scratch_.resize(n);
+  scratch_offset_.resize(n);
   // The bins (two arctangents a point, most of the cost) in pieces over the pool.
   constexpr int kPieces = 4;
   int piece_lo[kPieces], piece_hi[kPieces];
@@ -67,10 +77,13 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
     for (size_t i = n * size_t(k) / kPieces; i < n * size_t(k + 1) / kPieces; ++i) {
       const float r = points_S[i].norm();
       scratch_[i] = ~0u;
-      if (!(r >= min_range_m && r <= max_range_m)) continue;
-      int a, e;
-      BinOf(points_S[i], &a, &e);
+      if (!(r > 0.f && r <= max_range_m)) continue;
+      float fa, fe;
+      PlaceOf(points_S[i], &fa, &fe);
+      const int a = std::min(int(fa), na_ - 1), e = std::min(int(fe), ne_ - 1);
       scratch_[i] = uint32_t(e) << 16 | uint32_t(a);
+      scratch_offset_[i] = uint16_t(std::min(int((fe - float(e)) * 256.f), 255) << 8 |
+                                    std::min(int((fa - float(a)) * 256.f), 255));
       lo = std::min(lo, e);
       hi = std::max(hi, e);
     }
@@ -87,12 +100,27 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   first_row_ = lo;
   rows_ = std::max(0, hi - lo + 1);
   range_cm_.assign(size_t(rows_) * na_, kEmpty);
+  offset_.assign(size_t(rows_) * na_, 0);
   for (size_t i = 0; i < points_S.size(); ++i) {
     if (scratch_[i] == ~0u) continue;
     const int e = int(scratch_[i] >> 16), a = int(scratch_[i] & 0xffff);
-    const uint16_t cm = uint16_t(std::min(100.f * points_S[i].norm(), float(kEmpty - 1)));
-    uint16_t& slot = range_cm_[size_t(e - first_row_) * na_ + a];
-    slot = std::min(slot, cm);
+    const float r = points_S[i].norm();
+    const uint16_t cm = r < min_range_m ? 0 : uint16_t(std::min(100.f * r, float(kEmpty - 1)));
+    const size_t slot = size_t(e - first_row_) * na_ + a;
+    if (cm < range_cm_[slot]) {
+      range_cm_[slot] = cm;
+      offset_[slot] = scratch_offset_[i];
+    }
+  }
+  // Rows the sensor fired along: those with returns at 1 % of their azimuths or more (rows
+  // between a spinning sensor's rings hold none).
+  empty_range_m_ = max_range_m;
+  fired_.assign(size_t(rows_), 0);
+  const int enough = std::max(4, na_ / 100);
+  for (int row = 0; row < rows_; ++row) {
+    const uint16_t* line = &range_cm_[size_t(row) * na_];
+    fired_[size_t(row)] =
+        std::count_if(line, line + na_, [](uint16_t v) { return v != kEmpty; }) >= enough;
   }
 }
 
@@ -100,16 +128,25 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
   const float r = p_S.norm();
   if (!(r >= c.min_range_m && r <= c.max_range_m)) return false;
   const float beyond = r + c.margin_m + c.margin_per_m * r;
-  int a0, e0;
-  image.BinOf(p_S, &a0, &e0);
-  bool left = false, right = false, below = false, above = false;
+  float fa, fe;
+  image.PlaceOf(p_S, &fa, &fe);
+  const int a0 = int(fa), e0 = int(fe);
+  bool left = false, right = false, below = false, above = false, all_beyond = true;
   // The window: so many bins, and at least window_min_m each side at the point's range (in
   // azimuth at its distance from the sensor's vertical axis).
   const float r_xy = std::max(std::sqrt(p_S.x() * p_S.x() + p_S.y() * p_S.y()), 0.1f);
+  const float cos_el = r_xy / std::max(r, 1e-6f);
   const int wa = std::min(
       kMaxWindowBins, std::max(c.window_azimuth_bins, image.BinsSpanning(c.window_min_m / r_xy)));
   const int we = std::min(
       kMaxWindowBins, std::max(c.window_elevation_bins, image.BinsSpanning(c.window_min_m / r)));
+  // A return this near p (in metres, squared): something is still there.
+  const float bin_m = image.bin_rad() * r;
+  const float near = c.near_m + c.near_bins * bin_m;
+  const float near2 = near * near;
+  // Least squares of 1/range = t0 + t1·x + t2·y over the window's returns, x and y their angular
+  // offsets from p in bins (azimuth scaled by cos(elevation)): sums in double.
+  double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, sz = 0, sxz = 0, syz = 0, szz = 0;
   // From the point's own bin outwards: a static point the scan sees has a return about its
   // range at or next to its own bin, and is let go after a look or two.
   const int ne = image.elevation_bins(), na = image.azimuth_bins();
@@ -122,17 +159,74 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       int a = a0 + da;
       if (a < 0) a += na;
       if (a >= na) a -= na;
-      const float v = image.AtWrapped(a, e);
-      if (v == kInf) continue;
-      // Any return in the window that does not end clearly beyond p: p may still be there.
-      if (v < beyond) return false;
-      left |= da < 0;
-      right |= da > 0;
-      below |= de < 0;
-      above |= de > 0;
+      float v = image.AtWrapped(a, e);
+      if (v <= 0.f) return false;  // blocked near the sensor
+      if (v == kInf) {
+        // Nothing came back: evidence only along a row the sensor fired, and only for `all_beyond`.
+        if (!c.empty_is_free || !image.Fired(e)) continue;
+        v = image.empty_range_m();
+        all_beyond &= v >= beyond;
+        left |= da < 0;
+        right |= da > 0;
+        below |= de < 0;
+        above |= de > 0;
+        continue;
+      }
+      float oa, oe;
+      image.OffsetAt(a, e, &oa, &oe);
+      const float x = (float(a0 + da) + oa - fa) * cos_el, y = (float(e) + oe - fe);
+      // Something still there: a return within `near` of p.
+      const float lateral = bin_m * std::sqrt(x * x + y * y), dr = v - r;
+      if (lateral * lateral + dr * dr < near2) return false;
+      all_beyond &= v >= beyond;
+      left |= x < 0.f;
+      right |= x > 0.f;
+      below |= y < 0.f;
+      above |= y > 0.f;
+      const double z = 1.0 / double(v);
+      s1 += 1;
+      sx += x;
+      sy += y;
+      sxx += double(x) * x;
+      sxy += double(x) * y;
+      syy += double(y) * y;
+      sz += z;
+      sxz += x * z;
+      syz += y * z;
+      szz += z * z;
     }
   }
-  return left && right && below && above;
+  if (!(left && right && below && above)) return false;
+  // Every return in the window ends clearly beyond p: seen through.
+  if (all_beyond) return true;
+  if (!c.surface_fit || s1 < 8) return false;
+  // Some end before: p is seen through only if the scan's surface around its direction is one
+  // plane (no depth edge in the window) that passes p by the margin. The normal equations, by
+  // Cramer's rule.
+  const double m00 = s1, m01 = sx, m02 = sy, m11 = sxx, m12 = sxy, m22 = syy;
+  const double c00 = m11 * m22 - m12 * m12, c01 = m02 * m12 - m01 * m22,
+               c02 = m01 * m12 - m02 * m11;
+  const double det = m00 * c00 + m01 * c01 + m02 * c02;
+  if (!(std::abs(det) > 1e-9 * s1 * s1 * s1)) return false;
+  const double c11 = m00 * m22 - m02 * m02, c12 = m01 * m02 - m00 * m12,
+               c22 = m00 * m11 - m01 * m01;
+  const double t0 = (c00 * sz + c01 * sxz + c02 * syz) / det;
+  const double t1 = (c01 * sz + c11 * sxz + c12 * syz) / det;
+  const double t2 = (c02 * sz + c12 * sxz + c22 * syz) / det;
+  if (!(t0 > 0.0)) return false;
+  const double fitted_range = 1.0 / t0;
+  if (fitted_range < beyond) return false;
+  // ... and by fit_normal_margin_m along the plane's normal: at a grazing angle a point a few
+  // centimetres off the surface (range noise, a pose a little off) lies metres in front of it along
+  // the ray. The plane's slope in range per radian, over the range, is the tangent of the angle
+  // between the ray and the normal.
+  const double slope = std::sqrt(t1 * t1 + t2 * t2) / t0 / double(image.bin_rad());
+  if ((fitted_range - r) / std::sqrt(1.0 + slope * slope) < c.fit_normal_margin_m) return false;
+  // The fit's residual, in range: δ(1/v) ≈ δv / v², at about the fitted range.
+  const double rss = std::max(0.0, szz - (t0 * sz + t1 * sxz + t2 * syz));
+  const double rms_range = std::sqrt(rss / s1) * fitted_range * fitted_range;
+  const double allowed = c.fit_rms_m + c.fit_rms_per_m * fitted_range;
+  return rms_range <= allowed;
 }
 
 void ClearedPoints::Add(const Vec3f& p_W, const Vec3f& dir_W, int64_t frame) {

@@ -44,7 +44,8 @@ class RangeImage {
   explicit RangeImage(float bin_deg);
 
   // Bins the points (sensor frame) whose range lies in [min_range_m, max_range_m]; with a pool,
-  // on its threads (the same image either way).
+  // on its threads (the same image either way). A bin whose nearest return lies nearer than
+  // min_range_m reads 0 (blocked: what lies behind it is unknown).
   void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
             WorkerPool* pool = nullptr);
 
@@ -54,6 +55,10 @@ class RangeImage {
   int BinsSpanning(float angle_rad) const { return int(std::ceil(angle_rad * inv_bin_rad_)); }
   // The bin of a direction (need not be unit; not zero).
   void BinOf(const Vec3f& d_S, int* azimuth, int* elevation) const;
+  // The direction's place in bins, continuous: azimuth in [0, azimuth_bins()), elevation in
+  // [0, elevation_bins()]; its bin is (floor(azimuth), floor(elevation)).
+  void PlaceOf(const Vec3f& d_S, float* azimuth, float* elevation) const;
+  float bin_rad() const { return 1.f / inv_bin_rad_; }
   // The nearest range in bin (azimuth, elevation), floored to the centimetre; +inf when it holds
   // no return. Azimuth wraps; elevation must be in [0, elevation_bins()).
   float At(int azimuth, int elevation) const {
@@ -61,12 +66,26 @@ class RangeImage {
     if (azimuth < 0) azimuth += na_;
     return AtWrapped(azimuth, elevation);
   }
+  // Whether the sensor fired along elevation row `elevation` (it holds returns at some azimuths),
+  // and the range up to which an empty bin of such a row saw nothing.
+  bool Fired(int elevation) const {
+    const int row = elevation - first_row_;
+    return unsigned(row) < unsigned(rows_) && fired_[size_t(row)];
+  }
+  float empty_range_m() const { return empty_range_m_; }
   // At() for an azimuth already in [0, azimuth_bins()).
   float AtWrapped(int azimuth, int elevation) const {
     const int row = elevation - first_row_;
     if (unsigned(row) >= unsigned(rows_)) return std::numeric_limits<float>::infinity();
     const uint16_t cm = range_cm_[size_t(row) * na_ + azimuth];
     return cm == kEmpty ? std::numeric_limits<float>::infinity() : 0.01f * float(cm);
+  }
+  // Where in bin (azimuth, elevation), already wrapped, its nearest return lies: offsets in
+  // [0, 1) of a bin from the bin's lower corner. Only for a bin that holds a return.
+  void OffsetAt(int azimuth, int elevation, float* da, float* de) const {
+    const uint16_t o = offset_[size_t(elevation - first_row_) * na_ + azimuth];
+    *da = (float(o & 0xff) + 0.5f) * (1.f / 256.f);
+    *de = (float(o >> 8) + 0.5f) * (1.f / 256.f);
   }
 
  private:
@@ -79,7 +98,11 @@ class RangeImage {
   int na_, ne_;
   int first_row_ = 0, rows_ = 0;
   std::vector<uint16_t> range_cm_;
+  std::vector<uint16_t> offset_;  // per bin: its return's place in it, 8 bits each way
+  std::vector<uint8_t> fired_;    // per row
+  float empty_range_m_ = 0.f;
   std::vector<uint32_t> scratch_;  // per point of the scan: its bin, or ~0 when not binned
+  std::vector<uint16_t> scratch_offset_;
 };
 
 // The rule above for a point p_S (sensor frame) at range r = |p_S| in [min_range_m, max_range_m]
