@@ -137,11 +137,15 @@ struct TransientConfig {
   // is kept.
   float near_m = 0.08f;
   float near_bins = 0.6f;
-  // A direction the sensor fired in (a row of the range image that holds returns elsewhere) that
-  // brought nothing back within the scan's range counts as a return at that range: the sky
-  // behind a person seen along the street. Off: such bins are no evidence (a sensor whose beams
-  // often bring nothing back from dark or glass surfaces).
+  // A direction the sensor fired in that brought nothing back within the scan's range counts as a
+  // return at that range: the sky behind a person seen along the street. A row of the range image
+  // counts as fired when it holds returns at this share of its azimuths or more: a spinning
+  // sensor's ring lined up with the image. A sensor whose rings do not line up with it (a tilted
+  // or deskewed frame, a non-repeating pattern) leaves most rows partly filled, with gaps between
+  // its beams, and its empty bins are no evidence. Off (empty_is_free=false): empty bins never
+  // are (a sensor whose beams often bring nothing back from dark or glass surfaces).
   bool empty_is_free = true;
+  float fired_row_share = 0.5f;
   // Points nearer or farther than this from the sensor are not judged.
   float min_range_m = 1.f;
   float max_range_m = 40.f;

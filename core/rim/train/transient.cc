@@ -65,7 +65,7 @@ void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
 }
 
 void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
-                      WorkerPool* pool) {
+                      WorkerPool* pool, float fired_row_share) {
   const size_t n = points_S.size();
   scratch_.resize(n);
   scratch_offset_.resize(n);
@@ -112,11 +112,11 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
       offset_[slot] = scratch_offset_[i];
     }
   }
-  // Rows the sensor fired along: those with returns at 1 % of their azimuths or more (rows
-  // between a spinning sensor's rings hold none).
+  // Rows the sensor fired along: a spinning sensor's rings fill most of their row (a city scan's
+  // fill 60-100 % of theirs); rows between its rings hold none.
   empty_range_m_ = max_range_m;
   fired_.assign(size_t(rows_), 0);
-  const int enough = std::max(4, na_ / 100);
+  const int enough = std::max(1, int(std::ceil(fired_row_share * float(na_))));
   for (int row = 0; row < rows_; ++row) {
     const uint16_t* line = &range_cm_[size_t(row) * na_];
     fired_[size_t(row)] =
@@ -282,7 +282,7 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
                             float scan_max_range_m, int64_t frame, PointBuffer* buffer,
                             DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu,
                             WorkerPool* pool) {
-  image_.Fill(points_S, scan_min_range_m, scan_max_range_m, pool);
+  image_.Fill(points_S, scan_min_range_m, scan_max_range_m, pool, config_.fired_row_share);
   const Eigen::Matrix3f R_SW = T_world_sensor.linear().transpose();
   const Vec3f sensor_W = T_world_sensor.translation();
   const int period = config_.period_frames;

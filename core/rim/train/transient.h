@@ -46,8 +46,9 @@ class RangeImage {
   // Bins the points (sensor frame) whose range lies in [min_range_m, max_range_m]; with a pool,
   // on its threads (the same image either way). A bin whose nearest return lies nearer than
   // min_range_m reads 0 (blocked: what lies behind it is unknown).
+  // A row holding returns at fired_row_share of its azimuths or more counts as fired (Fired()).
   void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
-            WorkerPool* pool = nullptr);
+            WorkerPool* pool = nullptr, float fired_row_share = 0.5f);
 
   int azimuth_bins() const { return na_; }
   int elevation_bins() const { return ne_; }
@@ -66,7 +67,7 @@ class RangeImage {
     if (azimuth < 0) azimuth += na_;
     return AtWrapped(azimuth, elevation);
   }
-  // Whether the sensor fired along elevation row `elevation` (it holds returns at some azimuths),
+  // Whether the sensor fired along elevation row `elevation` (see Fill),
   // and the range up to which an empty bin of such a row saw nothing.
   bool Fired(int elevation) const {
     const int row = elevation - first_row_;
