@@ -5,18 +5,24 @@
 // surface forget them.
 //
 // The rule, judged per point p against the later scan's range image (nearest return per bin of
-// direction, in the sensor frame), over a window of bins around p's direction:
-//  - the window holds returns on both sides of p in azimuth and in elevation (p is surrounded by
-//    rays, not at the edge of what the sensor sees), and
-//  - every return in the window ends at least margin_m + margin_per_m · range beyond p.
-// A static surface that the scan sees is never eroded: along a continuous surface the range
-// changes monotonically, so of two rays on opposite sides of p one ends nearer than p (a wall or
-// the ground at a grazing angle, whose far side lies beyond p, has its near side in front of it).
-// A surface hidden behind something nearer keeps its points (the nearer returns are in front). A
-// thin pole keeps its points as long as the beams that hit it fall in the window: any return
-// near p's range vetoes. A surface seen once from afar and never again in the window's reach
-// (above the sensor's field of view, or no returns around it) is not judged. Empty bins (no
-// return: sky, absorbing or specular surfaces) are no evidence of free space.
+// direction, in the sensor frame, with where in the bin it lies), over a window of bins around
+// p's direction (docs/core.md, "Moving things", has the numbers and the measurements):
+//  - no return of the window lies within near_m + near_bins · (bin width at p's range) of p
+//    (something is still there: a thin pole's hits), and
+//  - the window holds returns on both sides of p in azimuth and in elevation, and either
+//  - every return ends at least margin_m + margin_per_m · range beyond p, or
+//  - (surface_fit) a plane fitted to the returns in 1/range (linear in the direction for any
+//    plane) fits them within fit_rms_m + fit_rms_per_m · range and passes p by the margin along
+//    the ray and by fit_normal_margin_m along its normal: the road beyond a departed person's
+//    feet, where the rays below them end in front of where they stood.
+// A static surface that the scan sees is not eroded: its own returns fit a plane through p, not
+// beyond it, at any angle; the normal margin keeps points a few centimetres off a surface seen at
+// a grazing angle; across a depth edge no plane fits and of two rays on opposite sides of p one
+// ends nearer. A surface hidden behind something nearer keeps its points. A surface seen once from
+// afar and never again in the window's reach is not judged. An empty bin counts as a return at
+// the scan's range only along a fired row (empty_is_free, fired_row_share): the sky behind a
+// person seen along the street; elsewhere (absorbing or specular surfaces, gaps between rings)
+// it is no evidence. A return nearer than the scan's minimum range blocks the window.
 #pragma once
 
 #include <Eigen/Geometry>
