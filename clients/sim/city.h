@@ -22,6 +22,9 @@ class LoopPath {
   LoopPath(const Vec2& center, const Vec2& half_extent, double corner_radius);
 
   double length() const { return length_; }
+  const Vec2& center() const { return center_; }
+  const Vec2& half_extent() const { return half_; }
+  double corner_radius() const { return radius_; }
   // Position and heading (radians, 0 along +x, counter-clockwise) at arc length s, wrapped
   // around the loop.
   void Eval(double s, Vec2* position, double* heading) const;

@@ -229,6 +229,17 @@ void AddMovingJson(const City& city, Json* scene) {
       kMoverOffset, loop_length);
   mover_json["shape"] =
       "box (length, width, height) standing on the ground, length along the heading";
+  // The loop itself, so that a script can place each car at any time: straights along x and y,
+  // joined by quarter circles of corner_radius_m, inside the rectangle center_m +- half_extent_m.
+  if (!city.movers.empty()) {
+    const LoopPath& loop = city.movers[0].path;
+    mover_json["loop"] = {
+        {"center_m", Json::array({rim::io::JsonNumber(loop.center().x(), 4),
+                                  rim::io::JsonNumber(loop.center().y(), 4)})},
+        {"half_extent_m", Json::array({rim::io::JsonNumber(loop.half_extent().x(), 4),
+                                       rim::io::JsonNumber(loop.half_extent().y(), 4)})},
+        {"corner_radius_m", rim::io::JsonNumber(loop.corner_radius(), 4)}};
+  }
   mover_json["list"] = std::move(movers);
 }
 

@@ -1756,7 +1756,8 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   EXPECT_EQ(crosser_json["count"], 4);
   ASSERT_EQ(crosser_json["list"].size(), 4u);
   nlohmann::ordered_json& mover_json = scene["movers"];
-  EXPECT_EQ(Keys(mover_json), (std::vector<std::string>{"count", "in", "motion", "shape", "list"}));
+  EXPECT_EQ(Keys(mover_json),
+            (std::vector<std::string>{"count", "in", "motion", "shape", "loop", "list"}));
   EXPECT_EQ(mover_json["count"], 3);
   ASSERT_EQ(mover_json["list"].size(), 3u);
   // Written to 4 decimals (the street direction exactly).
@@ -1776,6 +1777,21 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   EXPECT_NEAR(j2["speed_mps"].get<double>(), city.movers[2].speed, 5e-5);
   EXPECT_NEAR(j2["s0_m"].get<double>(), city.movers[2].s0, 5e-5);
   EXPECT_EQ(j2["size_m"], nlohmann::ordered_json::array({4.4, 1.8, 1.5}));
+  // The loop, as written, places a car where the simulator put it.
+  const nlohmann::ordered_json& loop = mover_json["loop"];
+  const LoopPath written(Vec2(loop["center_m"][0].get<double>(), loop["center_m"][1].get<double>()),
+                         Vec2(loop["half_extent_m"][0].get<double>(),
+                              loop["half_extent_m"][1].get<double>()),
+                         loop["corner_radius_m"].get<double>());
+  EXPECT_NEAR(written.length(), city.movers[2].path.length(), 1e-3);
+  for (double t : {0.0, 1.7, 9.9}) {
+    const double s = j2["s0_m"].get<double>() - j2["speed_mps"].get<double>() * t;
+    Vec2 p_written, p_sim;
+    double h_written, h_sim;
+    written.Eval(s, &p_written, &h_written);
+    city.movers[2].path.Eval(city.movers[2].s0 - city.movers[2].speed * t, &p_sim, &h_sim);
+    EXPECT_LT((p_written - p_sim).norm(), 2e-3) << "t " << t;
+  }
   const std::string readme = ReadFile(with.out_dir + "/README.txt");
   EXPECT_NE(readme.find("Crossers: 4 pedestrians"), std::string::npos) << readme;
   EXPECT_NE(readme.find("Movers: 3 cars"), std::string::npos) << readme;
