@@ -8,6 +8,9 @@
 #     robot drove through them: the static scene's distance within 5 cm, none 10 cm too near.
 # Usage: moving_things.sh BUILD_DIR [WORK_DIR]
 #   (RIM_MOVING_FRAMES, RIM_MOVING_PRESET, RIM_MOVING_ARGS, RIM_MOVING_SEED, RIM_MOVING_SIM_ARGS)
+#   RIM_MOVING_STREAM=1 scores the map of a rim_server session the city was streamed to at 10 Hz
+#   (rimctl stream --rate 10, then rimctl query and rimctl mesh) instead of rim_map's; rim_map
+#   still runs, for the planner points' exact distances.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 if [ -n "${2:-}" ]; then
@@ -80,6 +83,42 @@ PY
   --set train.iterations=20 --query-points "$WORK/walk.csv" ${EXTRA[@]+"${EXTRA[@]}"} 2>/dev/null | grep '^moving things'
 "$BUILD/clients/rim_eval" "$WORK/map/mesh.ply" "$WORK/city/gt.ply" --box 10,10,-3,3 \
   --seq "$WORK/city" --json --floaters "$WORK/floaters.csv" > "$WORK/eval.json"
+
+if [ -n "${RIM_MOVING_STREAM:-}" ]; then
+  "$BUILD/server/rim_server" --listen 127.0.0.1:0 --data-dir "$WORK/data" > "$WORK/server.out" 2> "$WORK/server.log" &
+  SERVER_PID=$!
+  trap 'kill -TERM $SERVER_PID 2> /dev/null; wait $SERVER_PID 2> /dev/null; [ -n "${RIM_KEEP_TEST_DIRS:-}${2:-}" ] || rm -rf "$WORK"' EXIT
+  ADDR=""
+  for _ in $(seq 1 600); do
+    ADDR="$(sed -n 's/^rim_server listening on //p' "$WORK/server.out")"
+    [ -n "$ADDR" ] && break
+    kill -0 "$SERVER_PID" 2> /dev/null || break
+    sleep 0.1
+  done
+  [ -n "$ADDR" ] || { cat "$WORK/server.log" >&2; exit 1; }
+  export RIM_SERVER="$ADDR"
+  for _ in $(seq 1 600); do "$BUILD/clients/rimctl" health > /dev/null 2>&1 && break; sleep 0.1; done
+  "$BUILD/clients/rimctl" session create r --preset "$PRESET" ${EXTRA[@]+"${EXTRA[@]}"} > /dev/null
+  "$BUILD/clients/rimctl" stream r "$WORK/city" --rate 10 > "$WORK/stream.log"
+  "$BUILD/clients/rimctl" session get r > "$WORK/session.txt"
+  "$BUILD/clients/rimctl" query r --points "$WORK/walk.csv" --gradient --out "$WORK/streamed.csv"
+  "$BUILD/clients/rimctl" mesh r --out "$WORK/streamed_mesh" > /dev/null
+  # The streamed answers, with the exact distances rim_map computed for the same points.
+  python3 - "$WORK/streamed.csv" "$WORK/map/query.csv" <<'PY'
+import csv, sys
+streamed = list(csv.DictReader(open(sys.argv[1])))
+offline = list(csv.DictReader(open(sys.argv[2])))
+assert len(streamed) == len(offline), (len(streamed), len(offline))
+with open(sys.argv[2], "w", newline="") as f:
+    w = csv.DictWriter(f, fieldnames=list(offline[0].keys()))
+    w.writeheader()
+    for s, o in zip(streamed, offline):
+        w.writerow({**o, **{k: s[k] for k in ("sdf", "observed", "gx", "gy", "gz")}})
+PY
+  echo "moving things: streamed at 10 Hz through rim_server"
+  "$BUILD/clients/rim_eval" "$WORK/streamed_mesh/mesh.ply" "$WORK/city/gt.ply" --box 10,10,-3,3 \
+    --seq "$WORK/city" --json --floaters "$WORK/floaters.csv" > "$WORK/eval.json"
+fi
 
 python3 - "$WORK/eval.json" "$WORK/map/query.csv" "$WORK/city/scene.json" "$WORK/floaters.csv" <<'PY'
 import csv, json, math, sys
