@@ -324,7 +324,12 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     LocalMap::Level& lv = map->level(0);
     for (int k = 0; k < 27; ++k) {
       const Int3 v = g + Int3(k / 9 - 1, k / 3 % 3 - 1, k % 3 - 1);
-      if (!map->InBox(0, v)) continue;
+      if (!map->InBox(0, v)) {
+        // The box has just moved off it (the buffer lets such points go after this frame's
+        // marking): the global map clears it, as for a departed point seen through.
+        outside_cells_.push_back(v);
+        continue;
+      }
       // Readers load flags atomically under the shared lock (flags_shared): so are these writes.
       uint8_t* f = &lv.flags(map->Slot(0, v));
       __atomic_fetch_and(f, uint8_t(~LocalMap::kObserved), __ATOMIC_RELAXED);
