@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <tuple>
 
 namespace rim {
 namespace {
@@ -348,6 +349,17 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     stats_.deferred_removed += deferred->RemoveIf(sensor_W, config_.max_range_m, 2 * period,
                                                   int(frame % (2 * period)), seen_through);
   }
+}
+
+std::vector<Int3> TransientFilter::TakeOutsideCells() {
+  std::vector<Int3> cells = std::move(outside_cells_);
+  outside_cells_.clear();
+  auto less = [](const Int3& a, const Int3& b) {
+    return std::tie(a.x(), a.y(), a.z()) < std::tie(b.x(), b.y(), b.z());
+  };
+  std::sort(cells.begin(), cells.end(), less);
+  cells.erase(std::unique(cells.begin(), cells.end()), cells.end());
+  return cells;
 }
 
 int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame,

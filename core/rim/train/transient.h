@@ -163,8 +163,8 @@ class TransientFilter {
 
   // Finest voxels (at the corners of the cells holding departed points seen through) that lie
   // outside the box now, collected since the last call: the mapper marks them seen free in the
-  // global map (SubmapStore::ClearObserved).
-  std::vector<Int3> TakeOutsideCells() { return std::move(outside_cells_); }
+  // global map (SubmapStore::ClearObserved). Each voxel once: the buffer's points share them.
+  std::vector<Int3> TakeOutsideCells();
   size_t departed() const { return departed_.size(); }
 
   const ClearedPoints& cleared() const { return cleared_; }
