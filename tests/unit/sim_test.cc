@@ -1779,10 +1779,10 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   EXPECT_EQ(j2["size_m"], nlohmann::ordered_json::array({4.4, 1.8, 1.5}));
   // The loop, as written, places a car where the simulator put it.
   const nlohmann::ordered_json& loop = mover_json["loop"];
-  const LoopPath written(Vec2(loop["center_m"][0].get<double>(), loop["center_m"][1].get<double>()),
-                         Vec2(loop["half_extent_m"][0].get<double>(),
-                              loop["half_extent_m"][1].get<double>()),
-                         loop["corner_radius_m"].get<double>());
+  const LoopPath written(
+      Vec2(loop["center_m"][0].get<double>(), loop["center_m"][1].get<double>()),
+      Vec2(loop["half_extent_m"][0].get<double>(), loop["half_extent_m"][1].get<double>()),
+      loop["corner_radius_m"].get<double>());
   EXPECT_NEAR(written.length(), city.movers[2].path.length(), 1e-3);
   for (double t : {0.0, 1.7, 9.9}) {
     const double s = j2["s0_m"].get<double>() - j2["speed_mps"].get<double>() * t;
