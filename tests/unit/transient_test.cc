@@ -399,6 +399,19 @@ std::unique_ptr<Mapper> DriveByAPerson(const std::string& setting, int first, in
   return std::move(*mapper);
 }
 
+// The mesh's vertices where DriveByAPerson's person stood, 0.3-1.7 m up.
+int MeshVerticesWherePersonStood(const Mapper& mapper) {
+  int in_person = 0;
+  for (const TileInfo& t : mapper.ListTiles(0)) {
+    auto mesh = mapper.ExtractMeshTile(t.key);
+    EXPECT_TRUE(mesh.ok());
+    for (const auto& v : mesh->vertices)
+      in_person +=
+          v[0] > 1.9f && v[0] < 2.6f && v[1] > 2.9f && v[1] < 3.7f && v[2] > 0.3f && v[2] < 1.7f;
+  }
+  return in_person;
+}
+
 // A person beside the road stays until the robot's box has left them behind (until frame 14),
 // then walks off: the rays that later pass where they stood come from a box that no longer holds
 // the place. Their voxels in the global map read seen free, and the tile there meshes without
@@ -406,16 +419,8 @@ std::unique_ptr<Mapper> DriveByAPerson(const std::string& setting, int first, in
 int MeshVerticesWherePersonStoodAfterDriving(int departed_frames) {
   std::unique_ptr<Mapper> mapper =
       DriveByAPerson("transient.departed_frames=" + std::to_string(departed_frames), 0, 14, 40);
-  int in_person = 0;
-  for (const TileInfo& t : mapper->ListTiles(0)) {
-    auto mesh = mapper->ExtractMeshTile(t.key);
-    EXPECT_TRUE(mesh.ok());
-    for (const auto& v : mesh->vertices)
-      in_person +=
-          v[0] > 1.9f && v[0] < 2.6f && v[1] > 2.9f && v[1] < 3.7f && v[2] > 0.3f && v[2] < 1.7f;
-  }
   EXPECT_EQ(departed_frames > 0, mapper->Stats().transient_departed_removed > 0);
-  return in_person;
+  return MeshVerticesWherePersonStood(*mapper);
 }
 
 TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
@@ -432,16 +437,8 @@ TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
 TEST(TransientTest, APersonSeenThroughAsTheBoxLeavesIsClearedFromTheGlobalMap) {
   for (int last : {10, 12}) {
     std::unique_ptr<Mapper> mapper = DriveByAPerson("transient.departed_frames=0", 0, last, 40);
-    int in_person = 0;
-    for (const TileInfo& t : mapper->ListTiles(0)) {
-      auto mesh = mapper->ExtractMeshTile(t.key);
-      EXPECT_TRUE(mesh.ok());
-      for (const auto& v : mesh->vertices)
-        in_person +=
-            v[0] > 1.9f && v[0] < 2.6f && v[1] > 2.9f && v[1] < 3.7f && v[2] > 0.3f && v[2] < 1.7f;
-    }
     EXPECT_GT(mapper->Stats().transient_buffer_removed, 500) << "person until frame " << last;
-    EXPECT_LE(in_person, 60) << "person until frame " << last;
+    EXPECT_LE(MeshVerticesWherePersonStood(*mapper), 60) << "person until frame " << last;
   }
 }
 
