@@ -161,9 +161,10 @@ class TransientFilter {
              float scan_min_range_m, float scan_max_range_m, int64_t frame, PointBuffer* buffer,
              DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu, WorkerPool* pool);
 
-  // Finest voxels (at the corners of the cells holding departed points seen through) that lie
-  // outside the box now, collected since the last call: the mapper marks them seen free in the
-  // global map (SubmapStore::ClearObserved). Each voxel once: the buffer's points share them.
+  // Finest voxels (at the corners of the cells holding departed points, or buffered points the box
+  // has just left, seen through) that lie outside the box now, collected since the last call: the
+  // mapper marks them seen free in the global map (SubmapStore::ClearObserved). Each voxel once:
+  // the buffer's points share them.
   std::vector<Int3> TakeOutsideCells();
   size_t departed() const { return departed_.size(); }
 
