@@ -85,9 +85,12 @@ PY
   --seq "$WORK/city" --json --floaters "$WORK/floaters.csv" > "$WORK/eval.json"
 
 if [ -n "${RIM_MOVING_STREAM:-}" ]; then
-  "$BUILD/server/rim_server" --listen 127.0.0.1:0 --data-dir "$WORK/data" > "$WORK/server.out" 2> "$WORK/server.log" &
+  "$BUILD/server/rim_server" --listen 127.0.0.1:0 --data-dir "$WORK/data" \
+    > "$WORK/server.out" 2> "$WORK/server.log" &
   SERVER_PID=$!
-  trap 'kill -TERM $SERVER_PID 2> /dev/null; wait $SERVER_PID 2> /dev/null; [ -n "${RIM_KEEP_TEST_DIRS:-}${2:-}" ] || rm -rf "$WORK"' EXIT
+  # Stop the server on the way out; a work folder the script made itself goes too, as above.
+  trap 'kill -TERM $SERVER_PID 2> /dev/null; wait $SERVER_PID 2> /dev/null
+        [ -n "${RIM_KEEP_TEST_DIRS:-}${2:-}" ] || rm -rf "$WORK"' EXIT
   ADDR=""
   for _ in $(seq 1 600); do
     ADDR="$(sed -n 's/^rim_server listening on //p' "$WORK/server.out")"
@@ -144,7 +147,8 @@ present = [(position(c, f / rate), c["radius_m"] + 0.3) for c in scene["crossers
 # The same for the cars passing in the other lane: a box along the heading, grown by 0.3 m.
 def loop_eval(loop, s):  # scene.json's "loop": position and heading at arc length s
     (cx, cy), (a, b), r = loop["center_m"], loop["half_extent_m"], loop["corner_radius_m"]
-    starts = [(cx - a + r, cy - b), (cx + a, cy - b + r), (cx + a - r, cy + b), (cx - a, cy + b - r)]
+    starts = [(cx - a + r, cy - b), (cx + a, cy - b + r), (cx + a - r, cy + b),
+              (cx - a, cy + b - r)]
     centers = [(cx + a - r, cy - b + r), (cx + a - r, cy + b - r), (cx - a + r, cy + b - r),
                (cx - a + r, cy - b + r)]
     lengths, arc = [2 * (a - r), 2 * (b - r)] * 2, 0.5 * math.pi * r
@@ -156,7 +160,8 @@ def loop_eval(loop, s):  # scene.json's "loop": position and heading at arc leng
         s -= lengths[k]
         if s <= arc or k == 3:
             th = d - math.pi / 2 + min(s, arc) / r
-            return centers[k][0] + r * math.cos(th), centers[k][1] + r * math.sin(th), th + math.pi / 2
+            return (centers[k][0] + r * math.cos(th), centers[k][1] + r * math.sin(th),
+                    th + math.pi / 2)
         s -= arc
 
 cars = []
@@ -164,7 +169,8 @@ movers = scene.get("movers", {})
 for m in movers.get("list", []):
     for f in last:
         x, y, h = loop_eval(movers["loop"], m["s0_m"] - m["speed_mps"] * f / rate)
-        cars.append((x, y, math.cos(h), math.sin(h), m["size_m"][0] / 2 + 0.3, m["size_m"][1] / 2 + 0.3))
+        cars.append((x, y, math.cos(h), math.sin(h),
+                     m["size_m"][0] / 2 + 0.3, m["size_m"][1] / 2 + 0.3))
 
 def standing_there(x, y):
     if any(math.hypot(x - px, y - py) <= r for (px, py), r in present):
