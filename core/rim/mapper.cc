@@ -127,6 +127,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
     const double t1 = Now();
     Preprocess(scan, moved);
     t.preprocess_s = Now() - t1;
+    t.transient_s = preprocess_transient_s_;
   }
   const auto [fewest, most] = IterationBounds(rays_per_iteration);
   const int rays = rays_per_iteration > 0 ? rays_per_iteration : config_.sampler.rays_per_iteration;

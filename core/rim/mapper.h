@@ -46,7 +46,8 @@ struct MeshCacheTotals;
 struct StageTimings {
   double slide_s = 0, preprocess_s = 0, sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0,
          step_s = 0, total_s = 0;
-  double distance_s = 0;  // distance field refresh (every query.refresh_frames frames)
+  double distance_s = 0;   // distance field refresh (every query.refresh_frames frames)
+  double transient_s = 0;  // of preprocess_s: the moving-things filter (train/transient.h)
   // Wall time of the iterations: the stages above from sample to step, and what they waited for
   // (the map's lock, the training threads) between them.
   double train_s = 0;
@@ -65,6 +66,7 @@ struct StageTimings {
     step_s += o.step_s;
     total_s += o.total_s;
     distance_s += o.distance_s;
+    transient_s += o.transient_s;
     train_s += o.train_s;
     iterations += o.iterations;
     return *this;
@@ -234,6 +236,7 @@ class Mapper {
   explicit Mapper(const MapperConfig& config);
   // Returns true when the box was placed or moved.
   bool SlideTo(const Vec3d& position_W);
+  // Sets preprocess_transient_s_.
   void Preprocess(const PosedScan& scan, bool box_moved);
   void BumpVersions(bool decoder_changed, const IntBox* old_box);
   // Moving things seen through after the box left them (TransientFilter::TakeOutsideCells): their
@@ -276,6 +279,7 @@ class Mapper {
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
   std::unique_ptr<TransientFilter> transient_;  // null when transient.enabled is false
+  double preprocess_transient_s_ = 0;  // the last Preprocess's time in transient_ (frame_mu_)
   std::unique_ptr<DistanceField> distance_;
   // What each frame changed, and the mesh blocks of the tiles near the box (MeshTile).
   std::unique_ptr<MeshChangeLog> mesh_changes_;

@@ -65,11 +65,14 @@ void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
   }
   // Moving things: returns that this scan's rays pass clearly through have gone (transient.h).
   // Judged before the scan joins the buffer, and only for scans from one sensor origin.
+  preprocess_transient_s_ = 0;
   if (transient_ && !per_point_origins) {
+    const double t0 = mapper_internal::Now();
     transient_->Apply(scan.points_S, T, min_range, max_range, frames_, buffer_.get(),
                       deferred_.get(), local_map_.get(), &aux_mu_, &trainer_->pool());
     const TransientConfig& tr = config_.transient;
     transient_->cleared().Expire(frames_, tr.clear_frames, size_t(tr.max_cleared_points), lo, hi);
+    preprocess_transient_s_ = mapper_internal::Now() - t0;
   }
   // Deferred rays that the box has just reached join the buffer as they are, and are marked like
   // the scan's inside rays (their endpoints observed, their part inside the box seen free).

@@ -107,7 +107,7 @@ void DeferredPoints::Evict(Table* table) {
 }
 
 int64_t DeferredPoints::RemoveIf(const Vec3f& center_W, float radius_m, int period, int phase,
-                                 const std::function<bool(const Vec3f&)>& drop) {
+                                 const BatchJudge& judge) {
   if (size_ == 0) return 0;
   Int3 lo, hi;
   for (int a = 0; a < 3; ++a) {
@@ -115,29 +115,40 @@ int64_t DeferredPoints::RemoveIf(const Vec3f& center_W, float radius_m, int peri
     hi[a] = int(std::floor((center_W[a] + radius_m) / extent_m_[a]));
   }
   const float r2 = radius_m * radius_m;
-  int64_t removed = 0;
+  // The rays to judge, and where each is filed.
+  std::vector<Vec3f> endpoints;
+  std::vector<std::pair<Table*, uint32_t>> where;
+  std::vector<Int3> keys;
   for (int x = lo.x(); x <= hi.x(); ++x)
     for (int y = lo.y(); y <= hi.y(); ++y)
       for (int z = lo.z(); z <= hi.z(); ++z) {
         if (((x + y + z) % period + period) % period != phase) continue;
         auto sub = submaps_.find(Int3(x, y, z));
         if (sub == submaps_.end()) continue;
-        Table& table = sub->second;
-        int64_t here = 0;
-        for (auto it = table.begin(); it != table.end();) {
-          const Vec3f p(it->second.p[0], it->second.p[1], it->second.p[2]);
-          if ((p - center_W).squaredNorm() <= r2 && drop(p)) {
-            table.erase(it++);
-            ++here;
-          } else {
-            ++it;
-          }
+        for (auto& [voxel, ray] : sub->second) {
+          const Vec3f p(ray.p[0], ray.p[1], ray.p[2]);
+          if ((p - center_W).squaredNorm() > r2) continue;
+          endpoints.push_back(p);
+          where.emplace_back(&sub->second, voxel);
+          keys.push_back(sub->first);
         }
-        if (here == 0) continue;
-        removed += here;
-        changed_.insert(Int3(x, y, z));
-        if (table.empty()) submaps_.erase(sub);
       }
+  if (endpoints.empty()) return 0;
+  std::vector<uint8_t> drop(endpoints.size(), 0);
+  judge(endpoints, &drop);
+  int64_t removed = 0;
+  for (size_t i = 0; i < endpoints.size(); ++i) {
+    if (!drop[i]) continue;
+    where[i].first->erase(where[i].second);
+    ++removed;
+    changed_.insert(keys[i]);
+  }
+  // Tables left empty go, once every erasure through `where` is done.
+  for (size_t i = 0; i < endpoints.size(); ++i) {
+    if (!drop[i]) continue;
+    auto sub = submaps_.find(keys[i]);
+    if (sub != submaps_.end() && sub->second.empty()) submaps_.erase(sub);
+  }
   size_ -= size_t(removed);
   return removed;
 }

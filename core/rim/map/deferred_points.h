@@ -58,13 +58,16 @@ class DeferredPoints {
   void TakeInside(const Vec3d& min_m, const Vec3d& max_m, std::vector<Vec3f>* points_W,
                   std::vector<Vec3f>* origins_W);
 
-  // Drops the rays whose endpoint lies within radius_m of center_W and for which drop(endpoint)
-  // is true, judging only the sub-maps (x, y, z) with (x + y + z) mod period == phase (period >=
-  // 1; a walk through a table costs more than judging its rays, so a frame walks only some).
-  // Returns how many were dropped; their sub-maps count as changed. Moving things,
+  // Drops the rays whose endpoint lies within radius_m of center_W and that `judge` marks,
+  // looking only at the sub-maps (x, y, z) with (x + y + z) mod period == phase (period >= 1; a
+  // walk through a table costs more than judging its rays, so a frame walks only some). `judge`
+  // gets those rays' endpoints at once (it may judge them in parallel) and sets drop[i] for each
+  // to go. Returns how many were dropped; their sub-maps count as changed. Moving things,
   // train/transient.h.
+  using BatchJudge =
+      std::function<void(const std::vector<Vec3f>& endpoints, std::vector<uint8_t>* drop)>;
   int64_t RemoveIf(const Vec3f& center_W, float radius_m, int period, int phase,
-                   const std::function<bool(const Vec3f&)>& drop);
+                   const BatchJudge& judge);
 
   size_t size() const { return size_; }
   DeferredStats Stats() const;

@@ -38,6 +38,21 @@ inline float FastAtan2(float y, float x) {
   return y < 0.f ? -a : a;
 }
 
+// Calls judge(i) for i in [0, n), in pieces over the pool when there are enough: a judgement
+// costs 0.1-1 µs, so a thousand of them outweigh waking the workers.
+void JudgeInPieces(size_t n, WorkerPool* pool, const std::function<void(size_t)>& judge) {
+  constexpr int kPieces = 8;
+  auto piece = [&](int k) {
+    const size_t begin = n * size_t(k) / kPieces, end = n * size_t(k + 1) / kPieces;
+    for (size_t i = begin; i < end; ++i) judge(i);
+  };
+  if (pool && n >= 1024) {
+    pool->Run(kPieces, piece);
+  } else {
+    for (int k = 0; k < kPieces; ++k) piece(k);
+  }
+}
+
 }  // namespace
 
 RangeImage::RangeImage(float bin_deg) {
@@ -144,7 +159,7 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
   // A return this near p (in metres, squared): something is still there.
   const float bin_m = image.bin_rad() * r;
   const float near = c.near_m + c.near_bins * bin_m;
-  const float near2 = near * near;
+  const float near2 = near * near, bin_m2 = bin_m * bin_m;
   // Least squares of 1/range = t0 + t1·x + t2·y over the window's returns, x and y their angular
   // offsets from p in bins (azimuth scaled by cos(elevation)): sums in double.
   double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, sz = 0, sxz = 0, syz = 0, szz = 0;
@@ -177,8 +192,8 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       image.OffsetAt(a, e, &oa, &oe);
       const float x = (float(a0 + da) + oa - fa) * cos_el, y = (float(e) + oe - fe);
       // Something still there: a return within `near` of p.
-      const float lateral = bin_m * std::sqrt(x * x + y * y), dr = v - r;
-      if (lateral * lateral + dr * dr < near2) return false;
+      const float dr = v - r;
+      if (bin_m2 * (x * x + y * y) + dr * dr < near2) return false;
       all_beyond &= v >= beyond;
       left |= x < 0.f;
       right |= x > 0.f;
@@ -292,21 +307,17 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     return SeenThrough(image_, config_, R_SW * (p_W - sensor_W));
   };
 
-  // The buffer: points judged in pieces over the pool, each piece writing its own flags.
+  // The buffer: this frame's turn (i mod period = phase) judged over the pool, each judgement
+  // writing its own flag.
   const std::vector<Vec3f>& points = buffer->points();
   const size_t n = points.size();
   drop_.assign(n, 0);
-  constexpr int kPieces = 8;
-  auto piece = [&](int k) {
-    const size_t begin = n * size_t(k) / kPieces, end = n * size_t(k + 1) / kPieces;
-    for (size_t i = begin; i < end; ++i)
-      if (int(i % size_t(period)) == phase) drop_[i] = seen_through(points[i]);
-  };
-  if (pool && n >= 4096) {
-    pool->Run(kPieces, piece);
-  } else {
-    for (int k = 0; k < kPieces; ++k) piece(k);
-  }
+  const size_t turn =
+      n > size_t(phase) ? (n - size_t(phase) + size_t(period) - 1) / size_t(period) : 0;
+  JudgeInPieces(turn, pool, [&](size_t k) {
+    const size_t i = size_t(phase) + k * size_t(period);
+    drop_[i] = seen_through(points[i]);
+  });
   std::vector<bool> keep(n, true);
   int64_t dropped = 0;
   const bool unmark = map != nullptr && map->placed();
@@ -341,13 +352,17 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
                                     ? JudgeDeparted(points, frame, *map, seen_through, pool)
                                     : 0;
   std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
-  stats_.judged += int64_t((n + period - 1 - phase) / period);
+  stats_.judged += int64_t(turn);
   stats_.departed_removed += departed_seen;
   if (dropped > 0) buffer->Filter(keep);
   stats_.buffer_removed += dropped;
   if (deferred) {
-    stats_.deferred_removed += deferred->RemoveIf(sensor_W, config_.max_range_m, 2 * period,
-                                                  int(frame % (2 * period)), seen_through);
+    stats_.deferred_removed += deferred->RemoveIf(
+        sensor_W, config_.max_range_m, 2 * period, int(frame % (2 * period)),
+        [&](const std::vector<Vec3f>& endpoints, std::vector<uint8_t>* drop) {
+          JudgeInPieces(endpoints.size(), pool,
+                        [&](size_t i) { (*drop)[i] = seen_through(endpoints[i]); });
+        });
   }
 }
 
@@ -384,7 +399,8 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
     const Eigen::Array3f q = points[i].array();
     if ((q >= lo).all() && (q < hi).all()) continue;
     const int64_t v = pack(voxel_of(points[i]));
-    if (departed_voxels_.insert(v).second) departed_.push_back({points[i], frame, v});
+    if (departed_voxels_.insert(v).second)
+      departed_.push_back({points[i], frame, v, int(v % (2 * config_.period_frames))});
   }
   // Forget the oldest: past departed_frames, and beyond the bound.
   const size_t bound = size_t(config_.max_departed_points);
@@ -400,19 +416,10 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
   const int phase = int(frame % period);
   const size_t count = departed_.size() - first;
   departed_drop_.assign(count, 0);
-  constexpr int kPieces = 8;
-  auto piece = [&](int k) {
-    const size_t begin = count * size_t(k) / kPieces, end = count * size_t(k + 1) / kPieces;
-    for (size_t i = begin; i < end; ++i) {
-      const Departed& d = departed_[first + i];
-      if (int(d.voxel % period) == phase) departed_drop_[i] = seen_through(d.p);
-    }
-  };
-  if (pool && count >= 4096) {
-    pool->Run(kPieces, piece);
-  } else {
-    for (int k = 0; k < kPieces; ++k) piece(k);
-  }
+  JudgeInPieces(count, pool, [&](size_t i) {
+    const Departed& d = departed_[first + i];
+    if (d.turn == phase) departed_drop_[i] = seen_through(d.p);
+  });
   size_t out = 0;
   int64_t seen = 0;
   for (size_t i = 0; i < count; ++i) {

@@ -188,6 +188,7 @@ class TransientFilter {
     Vec3f p;
     int64_t frame;
     int64_t voxel;  // packed finest voxel, one departed point per voxel
+    int turn;       // judged in frames with frame mod (2 · period_frames) equal to this
   };
   std::vector<Departed> departed_;  // in the order they left
   std::vector<uint8_t> departed_drop_;
