@@ -160,12 +160,27 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
   const float bin_m = image.bin_rad() * r;
   const float near = c.near_m + c.near_bins * bin_m;
   const float near2 = near * near, bin_m2 = bin_m * bin_m;
+  const int ne = image.elevation_bins(), na = image.azimuth_bins();
+  // Hidden: the returns of p's own azimuth column just below, at and just above its elevation end
+  // in front of it by the margin and twice the misfit a plane is allowed. No return of the window
+  // can then be beyond p by the margin along p's own ray, nor can a plane that fits them pass
+  // behind p: the verdict (kept) needs no more of the window. A fifth of all judgements end here,
+  // mostly deferred rays and departed points behind parked cars and walls.
+  if (we >= 1) {
+    const float front = r - (beyond - r) - 2.f * (c.fit_rms_m + c.fit_rms_per_m * r);
+    int in_front = 0;
+    for (int e = e0 - 1; e <= e0 + 1 && e >= 0 && e < ne; ++e) {
+      const float v = image.AtWrapped(a0, e);
+      if (!(v > 0.f && v < front)) break;
+      ++in_front;
+    }
+    if (in_front == 3) return false;
+  }
   // Least squares of 1/range = t0 + t1·x + t2·y over the window's returns, x and y their angular
   // offsets from p in bins (azimuth scaled by cos(elevation)): sums in double.
   double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, sz = 0, sxz = 0, syz = 0, szz = 0;
   // From the point's own bin outwards: a static point the scan sees has a return about its
   // range at or next to its own bin, and is let go after a look or two.
-  const int ne = image.elevation_bins(), na = image.azimuth_bins();
   for (int k = 0; k <= 2 * we; ++k) {
     const int de = k & 1 ? -(k + 1) / 2 : k / 2;  // 0, -1, +1, -2, +2, ...
     const int e = e0 + de;
