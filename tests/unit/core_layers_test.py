@@ -20,6 +20,7 @@ ALLOWED = {
     "model": {"base", "config", "map", "model"},
     "train": {"base", "config", "map", "model", "train"},
     "mesh": {"base", "config", "map", "model", "mesh"},
+    "gpu": {"base", "config", "map", "model", "gpu"},
 }
 TOP = set(ALLOWED) | {""}
 INCLUDE = re.compile(r'^\s*#\s*include\s+"rim/(?:([a-z_]+)/)?[\w.]+"')

@@ -266,6 +266,17 @@ void Decoder::Step(const AdamHyper& hyper, const std::vector<float>& grad) {
              adam_v_.data());
 }
 
+absl::Status Decoder::SetAdamState(int step, const std::vector<float>& m,
+                                   const std::vector<float>& v) {
+  if (step < 0 || m.size() != params_.size() || v.size() != params_.size()) {
+    return absl::InvalidArgumentError("decoder Adam state: wrong size or negative step count");
+  }
+  adam_step_ = step;
+  adam_m_ = m;
+  adam_v_ = v;
+  return absl::OkStatus();
+}
+
 void Decoder::Serialize(ByteWriter* w) const {
   w->I32(input_dim_);
   w->I32(int32_t(layers_.size()));

@@ -96,6 +96,11 @@ class Decoder {
 
   // Adam step on all parameters from their gradient (same layout as params()).
   void Step(const AdamHyper& hyper, const std::vector<float>& grad);
+  // The optimiser's state, for a copy kept elsewhere (the GPU path's): step count and moments.
+  int adam_step() const { return adam_step_; }
+  const std::vector<float>& adam_m() const { return adam_m_; }
+  const std::vector<float>& adam_v() const { return adam_v_; }
+  absl::Status SetAdamState(int step, const std::vector<float>& m, const std::vector<float>& v);
 
   void Serialize(ByteWriter* w) const;
   absl::Status Deserialize(ByteReader* r);
