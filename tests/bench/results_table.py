@@ -363,6 +363,7 @@ MEMORY = "2026-11-24-memory.json"
 LONG500 = "2026-11-22-long500-half.maicity_online.csv"
 MOVING = "2026-11-28-moving-things.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
+GPU = "2026-11-28-gpu.json"
 
 TABLES = {
     "speed": [
@@ -539,6 +540,34 @@ TABLES = {
         Row("of which the filter (`transient`), ms a frame (`maicity_online`)",
             lambda r: r.values(MOVING, "transient_ms", filter=True, preset="maicity_online"), F1,
             "–", None, [MOVING]),
+    ],
+    "gpu": [
+        Row("SDF queries, 16.8 M points on the device, M points/s",
+            lambda r: r.values(GPU, "query_sdf_mpoints_s"), {"digits": 0}, "–",
+            ("≥ 100", (">=", 100)), [GPU]),
+        Row("SDF and gradient queries, the same points, M points/s",
+            lambda r: r.values(GPU, "query_gradient_mpoints_s"), {"digits": 0}, "–",
+            ("≥ 50", (">=", 50)), [GPU]),
+        Row("SDF and gradient of 1 M points from host memory and back, M points/s",
+            lambda r: r.values(GPU, "query_host_roundtrip.mpoints_s"), {"digits": 0}, "–",
+            None, [GPU]),
+        Row("one training iteration, 18 432 rows (the decoder training), ms",
+            lambda r: r.values(GPU, "training.gpu_ms_decoder_training"), F3,
+            lambda r: "CPU path on the same host: " + fmt_range(
+                r.values(GPU, "training.cpu_ms_threads_16"), digits=2) + " (16 threads), " +
+            fmt_range(r.values(GPU, "training.cpu_ms_threads_2"), digits=2) + " (2)",
+            None, [GPU]),
+        Row("30 iterations, a `maicity` frame's training without its sampling, ms",
+            lambda r: r.values(GPU, "training.gpu_ms_30_iterations"), F2,
+            "the whole frame: 253 (paper, RTX 3070 Ti); target 10", None, [GPU]),
+        Row("device memory (one map, its batch, buffers for 16.8 M query points) after 500 more "
+            "iterations, MB",
+            lambda r: [v / 1e6 for v in r.values(GPU, "memory_after_500")], {"digits": 0},
+            lambda r: "before: " + fmt_range([v / 1e6 for v in r.values(GPU, "memory_before_500")],
+                                             digits=0), None, [GPU]),
+        Row("robots per GPU, each 30 iterations a frame at 10 Hz (training only)",
+            lambda r: r.values(GPU, "robots_real_time"), {"digits": 0}, "–",
+            ("≥ 20", (">=", 20)), [GPU]),
     ],
     "checkpoints": [
         Row("a periodic checkpoint of a 30 s city drive at 10 Hz, s",
