@@ -51,11 +51,13 @@ struct Args {
   bool tiles = false;
   std::string probe;  // "", "metric" or "neural"
   std::string query_points;
+  std::string device;  // "": the config's train.device
 };
 
 constexpr char kSynopsis[] =
     "usage: rim_map DATASET --preset NAME --out DIR [--frames A:B] [--set key=value ...]\n"
-    "               [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]";
+    "               [--config FILE] [--tiles] [--probe metric|neural] [--query-points FILE]\n"
+    "               [--device cpu|cuda|cuda:N]";
 constexpr char kDescription[] =
     "Offline mapping of a dataset with the core mapper, no server. Writes DIR/mesh.ply (all\n"
     "tiles, welded), DIR/timing.json (per-stage mean times, ms/frame, frames/s, peak and\n"
@@ -86,6 +88,10 @@ void AddFlags(CLI::App& app, Args& a) {
                       "the base")
            ->type_name("FILE"));
   app.add_flag("--tiles", a.tiles, "also write DIR/tiles/*.ply");
+  last(app.add_option("--device", a.device,
+                      "where the training iterations run: cpu, or cuda / cuda:N in a build with\n"
+                      "-DRIM_CUDA=ON (docs/gpu.md); sets train.device after --set")
+           ->type_name("cpu|cuda[:N]"));
   last(app.add_option("--probe", a.probe,
                       "score the final map's distances against the dataset's ground truth\n"
                       "(rim_sim's gt.ply and gt_observed.ply) at free-space points on its rays:\n"
@@ -180,11 +186,13 @@ absl::Status AnswerQueryPoints(const Args& args, const Mapper& mapper) {
 
 absl::Status Run(const Args& args) {
   MapperConfig config;
+  std::vector<std::string> overrides = args.overrides;
+  if (!args.device.empty()) overrides.push_back("train.device=" + args.device);
   if (!args.config_file.empty()) {
-    RIM_ASSIGN_OR_RETURN(config, LoadConfigFile(args.config_file, args.overrides));
+    RIM_ASSIGN_OR_RETURN(config, LoadConfigFile(args.config_file, overrides));
   } else {
     RIM_ASSIGN_OR_RETURN(config, MakePreset(args.preset));
-    RIM_RETURN_IF_ERROR(ApplyOverrides(args.overrides, &config));
+    RIM_RETURN_IF_ERROR(ApplyOverrides(overrides, &config));
   }
   RIM_ASSIGN_OR_RETURN(auto dataset, io::Dataset::Open(args.dataset));
   const long n = long(dataset->size());

@@ -13,6 +13,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/status_macros.h"
+#include "rim/gpu/device_map.h"
 #include "rim/map/deferred_points.h"
 #include "rim/map/distance_field.h"
 #include "rim/map/local_map.h"
@@ -59,6 +60,16 @@ Mapper::~Mapper() = default;
 
 absl::StatusOr<std::unique_ptr<Mapper>> Mapper::Create(const MapperConfig& config) {
   RIM_RETURN_IF_ERROR(config.Validate());
+  if (config.train.device != "cpu") {
+    // A missing CUDA build or device is an error now, not at the first frame.
+    RIM_ASSIGN_OR_RETURN(const int index, gpu::CudaDeviceIndex(config.train.device));
+    absl::StatusOr<gpu::DeviceInfo> device = gpu::OpenDevice(index);
+    if (!device.ok()) {
+      return absl::Status(
+          device.status().code(),
+          absl::StrCat("train.device = ", config.train.device, ": ", device.status().message()));
+    }
+  }
   return std::unique_ptr<Mapper>(new Mapper(config));
 }
 
@@ -171,6 +182,9 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
 absl::StatusOr<int> Mapper::Iterate(int iterations, int rays, bool train_decoder,
                                     const std::function<bool()>* keep_going, IterationTiming* it,
                                     double* loss_sum) {
+  if (config_.train.device != "cpu") {
+    return IterateOnDevice(iterations, rays, train_decoder, keep_going, it, loss_sum);
+  }
   int done = 0;
   while (done < iterations && (keep_going == nullptr || (*keep_going)())) {
     // Readers wait at most one iteration's writes (§3.5): the iteration reads the map beside them
@@ -187,6 +201,56 @@ absl::StatusOr<int> Mapper::Iterate(int iterations, int rays, bool train_decoder
     map_version_.fetch_add(1);
     ++done;
   }
+  return done;
+}
+
+absl::StatusOr<int> Mapper::IterateOnDevice(int iterations, int rays, bool train_decoder,
+                                            const std::function<bool()>* keep_going,
+                                            IterationTiming* it, double* loss_sum) {
+  if (!device_) {
+    RIM_ASSIGN_OR_RETURN(const int index, gpu::CudaDeviceIndex(config_.train.device));
+    std::shared_lock lock(mu_);
+    RIM_ASSIGN_OR_RETURN(device_, gpu::DeviceMap::Create(*local_map_, *decoder_, index));
+  }
+  double t0 = Now();
+  {
+    // The host map is the backing store: the slide's new rows and this frame's flags go over.
+    std::shared_lock lock(mu_);
+    RIM_RETURN_IF_ERROR(device_->SyncFromHost(*local_map_));
+  }
+  if (it) it->step_s += Now() - t0;
+  const gpu::TrainSettings settings = gpu::TrainSettings::From(config_, *geometry_);
+  int done = 0;
+  absl::Status status;
+  while (status.ok() && done < iterations && (keep_going == nullptr || (*keep_going)())) {
+    {
+      std::shared_lock lock(mu_);
+      status = trainer_->SampleRows(*buffer_, outside_->rays, it, rays);
+    }
+    if (!status.ok()) break;
+    const std::vector<float>& xyz = trainer_->rows_xyz();
+    const SampleBatch& batch = trainer_->last_batch();
+    t0 = Now();
+    absl::StatusOr<float> loss =
+        device_->Iterate(xyz.data(), int(xyz.size() / 3), int(batch.size()), batch.labels.data(),
+                         settings, train_decoder);
+    if (it) it->step_s += Now() - t0;
+    if (!loss.ok()) {
+      status = loss.status();
+      break;
+    }
+    *loss_sum += *loss;
+    ++done;
+  }
+  // Readers see the frame's training at once, when the rows it changed are back in the host map.
+  t0 = Now();
+  std::unique_lock lock(mu_);
+  const absl::Status back =
+      device_->SyncToHost(local_map_.get(), train_decoder ? decoder_.get() : nullptr);
+  map_version_.fetch_add(uint64_t(done));
+  if (it) it->step_s += Now() - t0;
+  RIM_RETURN_IF_ERROR(status);
+  RIM_RETURN_IF_ERROR(back);
   return done;
 }
 

@@ -23,6 +23,9 @@
 #include "rim/config/config.h"
 
 namespace rim {
+namespace gpu {
+class DeviceMap;
+}
 
 class Decoder;
 class DeferredPoints;
@@ -249,6 +252,11 @@ class Mapper {
   absl::StatusOr<int> Iterate(int iterations, int rays, bool train_decoder,
                               const std::function<bool()>* keep_going, IterationTiming* it,
                               double* loss_sum);
+  // Iterate with train.device = cuda: the samples drawn here, the iterations on the device copy
+  // of the local map (gpu/device_map.h), synced with the host map before and after.
+  absl::StatusOr<int> IterateOnDevice(int iterations, int rays, bool train_decoder,
+                                      const std::function<bool()>* keep_going, IterationTiming* it,
+                                      double* loss_sum);
   absl::Status SaveState(const std::string& path) const;
   absl::Status LoadState(const std::string& path, uint32_t* version);
   absl::Status SaveDeferred(const std::string& path) const;
@@ -278,6 +286,7 @@ class Mapper {
   std::unique_ptr<PointBuffer> buffer_;
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
+  std::unique_ptr<gpu::DeviceMap> device_;      // train.device = cuda: made at the first iteration
   std::unique_ptr<TransientFilter> transient_;  // null when transient.enabled is false
   double preprocess_transient_s_ = 0;  // the last Preprocess's time in transient_ (frame_mu_)
   std::unique_ptr<DistanceField> distance_;

@@ -108,7 +108,7 @@ int Main(int argc, char** argv) {
   // One training iteration.
   const int rays = config->sampler.rays_per_iteration;
   const int labelled = rays * (config->sampler.surface_samples + config->sampler.free_samples);
-  const gpu_testing::Batch batch =
+  gpu_testing::Batch batch =
       gpu_testing::SurfaceBatch(map, labelled, 1024, settings.eikonal_step_m, 3);
   nlohmann::json train;
   train["rows"] = batch.rows;
@@ -186,6 +186,39 @@ int Main(int argc, char** argv) {
     train["cpu_ms_threads_" + std::to_string(threads)] = Median(walls);
   }
   out["training"] = train;
+
+  // A Mapper's frame on the device: the host box slides one coarse cell, SyncFromHost sends the
+  // entering rows and the flags, 30 iterations with the loss read back after each, SyncToHost
+  // brings back the rows they changed.
+  {
+    map.MoveTo(map.coarse_origin() + Int3(1, 0, 0), LocalMap::SaveFn(), gpu_testing::LoadNothing);
+    const gpu_testing::Batch moved =
+        gpu_testing::SurfaceBatch(map, labelled, 1024, settings.eikonal_step_m, 4);
+    double s = Now();
+    if (absl::Status st = (*dm)->SyncFromHost(map); !st.ok()) return Fail(st);
+    const double from_ms = (Now() - s) * 1e3;
+    s = Now();
+    for (int i = 0; i < 30; ++i) {
+      absl::StatusOr<float> loss = (*dm)->Iterate(moved.xyz.data(), moved.rows, moved.labelled,
+                                                  moved.labels.data(), settings, false);
+      if (!loss.ok()) return Fail(loss.status());
+    }
+    const double iterations_ms = (Now() - s) * 1e3;
+    s = Now();
+    if (absl::Status st = (*dm)->SyncToHost(&map, nullptr); !st.ok()) return Fail(st);
+    const double to_ms = (Now() - s) * 1e3;
+    std::printf(
+        "\na frame as rim_map runs it (%d rows a batch): SyncFromHost %.2f ms "
+        "(%lld rows), 30 iterations %.2f ms, SyncToHost %.2f ms (%lld rows)\n",
+        moved.rows, from_ms, (long long)(*dm)->rows_uploaded(), iterations_ms, to_ms,
+        (long long)(*dm)->rows_downloaded());
+    out["frame_sync"] = {{"sync_from_host_ms", from_ms},
+                         {"rows_uploaded", (*dm)->rows_uploaded()},
+                         {"iterations_30_ms", iterations_ms},
+                         {"sync_to_host_ms", to_ms},
+                         {"rows_downloaded", (*dm)->rows_downloaded()}};
+    batch = moved;  // the first batch's points near the old box's edge are outside the new one
+  }
 
   // Device memory over 500 iterations.
   {

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <random>
 #include <set>
 #include <vector>
 
@@ -412,6 +413,50 @@ TEST_F(GpuTest, DeviceMemoryStaysFlat) {
         dm_->Iterate(c.xyz.data(), c.rows, c.labelled, c.labels.data(), settings_, false).ok());
   }
   EXPECT_EQ(dm_->device_bytes(), before);
+}
+
+TEST_F(GpuTest, SyncFollowsTheSlideAndBringsBackTheUpdatedRows) {
+  // The box slides by (2, 1, 0) coarse cells; the entering rows get random data from the
+  // "store".
+  std::mt19937 rng(51);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  const Int3 moved = map_.coarse_origin() + Int3(2, 1, 0);
+  map_.MoveTo(moved, LocalMap::SaveFn(), [&](int, const Int3&, float* features, uint8_t* observed) {
+    for (int d = 0; d < 8; ++d) features[d] = u(rng);
+    *observed = LocalMap::kObserved;
+    return true;
+  });
+  ASSERT_TRUE(dm_->SyncFromHost(map_).ok());
+  EXPECT_GT(dm_->rows_uploaded(), 0);
+  EXPECT_LT(dm_->rows_uploaded(), map_.level(0).slots());  // the slabs, not the whole map
+  LocalMap got(geo_);
+  got.PlaceWithoutLoading(map_.coarse_origin());
+  ASSERT_TRUE(dm_->Download(&got).ok());
+  ExpectSameMap(got, map_, 0.f, 0.f);
+  // The device copy's box moved with it: encodings in the new box match the host's.
+  const std::vector<float> xyz = gpu_testing::RandomPointsInBox(map_, 5000, 1e-3, 52);
+  std::vector<float> gpu_f(size_t(5000) * geo_.encoding_dim()), cpu_f(gpu_f.size());
+  ASSERT_TRUE(dm_->Encode(xyz.data(), 5000, gpu_f.data()).ok());
+  LocalEncoding enc;
+  EncodeLocal(map_, xyz.data(), 5000, &enc, cpu_f.data());
+  EXPECT_LT(RelativeError(gpu_f, cpu_f), 1e-6);
+  // Training, then the rows it changed back: the host map equals the device copy again.
+  for (int i = 0; i < 5; ++i) {
+    const Batch b = MakeBatch(60 + i);
+    ASSERT_TRUE(
+        dm_->Iterate(b.xyz.data(), b.rows, b.labelled, b.labels.data(), settings_, true).ok());
+  }
+  Decoder host_decoder = decoder_;
+  ASSERT_TRUE(dm_->SyncToHost(&map_, &host_decoder).ok());
+  EXPECT_GT(dm_->rows_downloaded(), 0);
+  LocalMap after(geo_);
+  after.PlaceWithoutLoading(map_.coarse_origin());
+  ASSERT_TRUE(dm_->Download(&after).ok());
+  ExpectSameMap(after, map_, 0.f, 0.f);
+  Decoder device_decoder(geo_.encoding_dim(), config_.decoder);
+  ASSERT_TRUE(dm_->DownloadDecoder(&device_decoder).ok());
+  EXPECT_EQ(host_decoder.params(), device_decoder.params());
+  EXPECT_NE(host_decoder.params(), decoder_.params());
 }
 
 TEST(GpuShapes, UnsupportedShapesNameTheSetting) {

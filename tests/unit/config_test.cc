@@ -156,6 +156,10 @@ TEST(ConfigTest, BadOverridesAreInvalidArgumentNamingTheFieldAndChangeNothing) {
       {{"submap.host_budget_bytes=1000"}, "submap.spill_dir"},
       {{"mesh.resolution_m=0.03"}, "mesh.resolution_m"},
       {{"preset=kitti"}, "preset"},
+      {{"train.device=gpu"}, "train.device"},
+      {{"train.device=cuda:"}, "train.device"},
+      {{"train.device=cuda:x"}, "train.device"},
+      {{"train.device=cuda", "train.step=libtorch"}, "train.device"},
       {{"train.iterations 5"}, "train.iterations 5"},
       // A valid override followed by a bad one: the valid one must not stick either.
       {{"train.iterations=5", "grid.nope=1"}, "grid.nope"},

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "rim/base/binary_io.h"
+#include "rim/gpu/device_map.h"
 #include "rim/map/distance_field.h"
 #include "rim/map/map_geometry.h"
 #include "rim/map/submap_store.h"
@@ -147,6 +148,22 @@ TEST_F(MapperTest, InvalidQueriesAreRejected) {
   EXPECT_THAT(std::string(s.message()), HasSubstr("points[1]"));
   xyz = {1e30f, 0.f, 0.f};
   EXPECT_EQ(mapper_->QuerySdf(xyz.data(), 1, false, &q).code(), absl::StatusCode::kInvalidArgument);
+}
+
+// train.device = cuda where the GPU path cannot run (this CPU build, or no device): Create
+// fails at once, naming the setting and the reason.
+TEST(MapperDeviceTest, CudaWithoutTheGpuPathFailsNamingTheSetting) {
+  if (gpu::BuiltWithCuda() && gpu::OpenDevice(0).ok()) GTEST_SKIP() << "a CUDA device is here";
+  absl::StatusOr<MapperConfig> c = MakePreset("maicity");
+  ASSERT_TRUE(c.ok());
+  ASSERT_TRUE(ApplyOverrides({"train.device=cuda"}, &*c).ok());
+  auto mapper = Mapper::Create(*c);
+  ASSERT_FALSE(mapper.ok());
+  EXPECT_EQ(mapper.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_THAT(std::string(mapper.status().message()), HasSubstr("train.device = cuda"));
+  if (!gpu::BuiltWithCuda()) {
+    EXPECT_THAT(std::string(mapper.status().message()), HasSubstr("-DRIM_CUDA=ON"));
+  }
 }
 
 TEST_F(MapperTest, FarAwayQueriesAreUnobserved) {

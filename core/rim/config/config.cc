@@ -1,5 +1,6 @@
 #include "rim/config/config.h"
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <fstream>
@@ -41,6 +42,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("train.adam_eps", c.train.adam_eps);
   v("train.step", c.train.step);
   v("train.threads", c.train.threads);
+  v("train.device", c.train.device);
   v("sampler.rays_per_iteration", c.sampler.rays_per_iteration);
   v("sampler.paced_rays_per_iteration", c.sampler.paced_rays_per_iteration);
   v("sampler.surface_samples", c.sampler.surface_samples);
@@ -183,6 +185,18 @@ absl::Status MapperConfig::Validate() const {
     return Bad("train.step", "must be \"fast\", \"libtorch\" or \"reference\"");
   }
   if (train.threads < 1 || train.threads > 64) return Bad("train.threads", "must be in [1, 64]");
+  {
+    const std::string& d = train.device;
+    const bool cuda_n =
+        d.size() > 5 && d.size() <= 7 && d.rfind("cuda:", 0) == 0 &&
+        std::all_of(d.begin() + 5, d.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
+    if (d != "cpu" && d != "cuda" && !cuda_n) {
+      return Bad("train.device", "must be \"cpu\", \"cuda\" or \"cuda:N\"");
+    }
+    if (d != "cpu" && train.step != "fast") {
+      return Bad("train.device", "a GPU trains only with train.step = fast");
+    }
+  }
   if (!(train.adam_beta1 >= 0.f && train.adam_beta1 < 1.f))
     return Bad("train.adam_beta1", "must be in [0, 1)");
   if (!(train.adam_beta2 >= 0.f && train.adam_beta2 < 1.f))

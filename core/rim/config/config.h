@@ -51,6 +51,9 @@ struct TrainConfig {
   // Threads of one session's training iterations (encode, gradient scatter, Adam). The server
   // runs --train-slots sessions at once, each with this many threads.
   int threads = 2;
+  // Where the training iterations run: "cpu", or "cuda" / "cuda:N" (the GPU path, docs/gpu.md:
+  // a build with -DRIM_CUDA=ON; the samples are still drawn on the CPU). Nothing else moves.
+  std::string device = "cpu";
 };
 
 // Ray sampling (§3.4 step 3, "Sample").

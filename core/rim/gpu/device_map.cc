@@ -96,17 +96,6 @@ absl::StatusOr<DeviceInfo> OpenDevice(int index) {
   return info;
 }
 
-TrainSettings TrainSettings::From(const MapperConfig& config, const MapGeometry& geometry) {
-  TrainSettings s;
-  s.sigma_m = config.train.sigma_m;
-  s.eikonal_weight = config.train.eikonal_weight;
-  s.eikonal_step_m = float(0.5 * geometry.leaf_m());
-  s.observed_band_m = config.sampler.observed_band_m;
-  s.adam = {config.train.learning_rate, config.train.adam_beta1, config.train.adam_beta2,
-            config.train.adam_eps};
-  return s;
-}
-
 struct DeviceMap::Impl {
   DeviceInfo info;
   cudaStream_t stream = nullptr;
@@ -119,9 +108,35 @@ struct DeviceMap::Impl {
   struct Level {
     DeviceArray<float> features, m, v, grad;
     DeviceArray<int32_t> steps, touched;
-    DeviceArray<uint32_t> tags;
+    DeviceArray<uint32_t> tags, sync_tags;
+    DeviceArray<int32_t> dirty;
     int64_t slots = 0;
   };
+  // Sync windows (SyncFromHost .. SyncToHost): rows Step updated are listed per level.
+  DeviceArray<int32_t> dirty_counts;
+  uint32_t sync_stamp = 0;
+  bool tracking = false;
+  int64_t uploaded = 0, downloaded = 0;
+  // Packed rows between the host and the device (grow only).
+  DeviceArray<int32_t> pk_slots, pk_steps;
+  DeviceArray<float> pk_features, pk_m, pk_v;
+  absl::Status GrowPacked(size_t n) {
+    RIM_RETURN_IF_ERROR(pk_slots.Allocate(n, &bytes));
+    RIM_RETURN_IF_ERROR(pk_steps.Allocate(n, &bytes));
+    RIM_RETURN_IF_ERROR(pk_features.Allocate(n * kFeatureDim, &bytes));
+    RIM_RETURN_IF_ERROR(pk_m.Allocate(n * kFeatureDim, &bytes));
+    RIM_RETURN_IF_ERROR(pk_v.Allocate(n * kFeatureDim, &bytes));
+    return absl::OkStatus();
+  }
+  PackedRows Packed() const {
+    PackedRows p;
+    p.slots = pk_slots.get();
+    p.features = pk_features.get();
+    p.adam_m = pk_m.get();
+    p.adam_v = pk_v.get();
+    p.steps = pk_steps.get();
+    return p;
+  }
   std::vector<Level> levels;
   DeviceArray<uint8_t> flags0;
   Grids grids;
@@ -205,7 +220,8 @@ struct DeviceMap::Impl {
 
   absl::Status EnqueueStep(const TrainSettings& s, bool train_decoder) {
     const AdamArgs adam{s.adam.lr, s.adam.beta1, s.adam.beta2, s.adam.eps};
-    RIM_CUDA(LaunchFeatureAdam(grids, adam, counts.get(), rows * 8, error.get(), stream));
+    RIM_CUDA(LaunchFeatureAdam(grids, adam, counts.get(), rows * 8, error.get(),
+                               tracking ? dirty_counts.get() : nullptr, sync_stamp, stream));
     Mark(7);
     if (train_decoder) {
       // Decoder::Step's bias corrections, in double.
@@ -273,8 +289,11 @@ absl::StatusOr<std::unique_ptr<DeviceMap>> DeviceMap::Create(const LocalMap& map
     RIM_RETURN_IF_ERROR(lv.grad.Allocate(n * kFeatureDim, &im.bytes));
     RIM_RETURN_IF_ERROR(lv.steps.Allocate(n, &im.bytes));
     RIM_RETURN_IF_ERROR(lv.tags.Allocate(n, &im.bytes));
+    RIM_RETURN_IF_ERROR(lv.sync_tags.Allocate(n, &im.bytes));
+    RIM_RETURN_IF_ERROR(lv.dirty.Allocate(n, &im.bytes));
     RIM_CUDA(cudaMemset(lv.grad.get(), 0, n * kFeatureDim * 4));
     RIM_CUDA(cudaMemset(lv.tags.get(), 0, n * 4));
+    RIM_CUDA(cudaMemset(lv.sync_tags.get(), 0, n * 4));
   }
   RIM_RETURN_IF_ERROR(im.flags0.Allocate((size_t(im.levels[0].slots) + 3) / 4 * 4, &im.bytes));
   RIM_RETURN_IF_ERROR(im.dparams.Allocate(size_t(im.params), &im.bytes));
@@ -285,6 +304,7 @@ absl::StatusOr<std::unique_ptr<DeviceMap>> DeviceMap::Create(const LocalMap& map
   RIM_RETURN_IF_ERROR(im.sums.Allocate(2, &im.bytes));
   RIM_RETURN_IF_ERROR(im.counts.Allocate(kMaxGpuLevels, &im.bytes));
   RIM_RETURN_IF_ERROR(im.error.Allocate(1, &im.bytes));
+  RIM_RETURN_IF_ERROR(im.dirty_counts.Allocate(kMaxGpuLevels, &im.bytes));
   RIM_RETURN_IF_ERROR(dm->Upload(map));
   RIM_RETURN_IF_ERROR(dm->UploadDecoder(decoder));
   return dm;
@@ -326,6 +346,8 @@ absl::Status DeviceMap::Upload(const LocalMap& map) {
     view.grad = lv.grad.get();
     view.tags = lv.tags.get();
     view.touched = lv.touched.get();
+    view.sync_tags = lv.sync_tags.get();
+    view.dirty = lv.dirty.get();
     const IntBox box = map.LatticeBox(l);
     for (int a = 0; a < 3; ++a) {
       view.dims[a] = src.dims[a];
@@ -396,6 +418,125 @@ absl::Status DeviceMap::DownloadDecoder(Decoder* decoder) const {
   RIM_CUDA(cudaMemcpy(v.data(), im.dv.get(), n * 4, cudaMemcpyDeviceToHost));
   return decoder->SetAdamState(im.decoder_step, m, v);
 }
+
+absl::Status DeviceMap::SyncFromHost(const LocalMap& map) {
+  Impl& im = *impl_;
+  if (map.geometry().levels() != int(im.levels.size())) {
+    return absl::InvalidArgumentError("SyncFromHost: the map's geometry differs");
+  }
+  RIM_CUDA(cudaStreamSynchronize(im.stream));
+  im.uploaded = 0;
+  std::vector<int32_t> slots, steps;
+  std::vector<float> features, m, v;
+  for (int l = 0; l < int(im.levels.size()); ++l) {
+    LevelView& view = im.grids.level[l];
+    const LocalMap::Level& src = map.level(l);
+    const IntBox box = map.LatticeBox(l);  // lattice points lo..hi, both included
+    const bool was_placed = view.cells[0] > 0;
+    const Int3 old_lo(view.lo[0], view.lo[1], view.lo[2]);
+    const Int3 old_hi = old_lo + Int3(view.cells[0], view.cells[1], view.cells[2]);
+    auto in_old = [&](int a, int x) { return was_placed && x >= old_lo[a] && x <= old_hi[a]; };
+    slots.clear();
+    if (map.placed()) {
+      // The lattice points of the new box that the old one lacks: whole planes and lines where
+      // an axis left the old range, the remainder of z otherwise.
+      for (int x = box.lo.x(); x <= box.hi.x(); ++x)
+        for (int y = box.lo.y(); y <= box.hi.y(); ++y)
+          for (int z = box.lo.z(); z <= box.hi.z(); ++z) {
+            if (in_old(0, x) && in_old(1, y) && in_old(2, z)) {
+              z = old_hi.z() < box.hi.z() ? std::max(z, old_hi.z()) : box.hi.z();
+              continue;
+            }
+            slots.push_back(int32_t(map.Slot(l, Int3(x, y, z))));
+          }
+    }
+    const size_t n = slots.size();
+    if (n > 0) {
+      features.resize(n * kFeatureDim);
+      m.resize(n * kFeatureDim);
+      v.resize(n * kFeatureDim);
+      steps.resize(n);
+      for (size_t i = 0; i < n; ++i) {
+        std::memcpy(&features[i * kFeatureDim], src.features(slots[i]), kFeatureDim * 4);
+        std::memcpy(&m[i * kFeatureDim], src.adam_m(slots[i]), kFeatureDim * 4);
+        std::memcpy(&v[i * kFeatureDim], src.adam_v(slots[i]), kFeatureDim * 4);
+        steps[i] = src.adam_steps(slots[i]);
+      }
+      RIM_RETURN_IF_ERROR(im.GrowPacked(n));
+      const PackedRows p = im.Packed();
+      RIM_CUDA(
+          cudaMemcpy(const_cast<int32_t*>(p.slots), slots.data(), n * 4, cudaMemcpyHostToDevice));
+      RIM_CUDA(cudaMemcpy(p.features, features.data(), n * 32, cudaMemcpyHostToDevice));
+      RIM_CUDA(cudaMemcpy(p.adam_m, m.data(), n * 32, cudaMemcpyHostToDevice));
+      RIM_CUDA(cudaMemcpy(p.adam_v, v.data(), n * 32, cudaMemcpyHostToDevice));
+      RIM_CUDA(cudaMemcpy(p.steps, steps.data(), n * 4, cudaMemcpyHostToDevice));
+      RIM_CUDA(LaunchScatterRows(view, p, int(n), im.stream));
+      RIM_CUDA(cudaStreamSynchronize(im.stream));  // the packed buffers are reused per level
+      im.uploaded += int64_t(n);
+    }
+    for (int a = 0; a < 3; ++a) {
+      view.lo[a] = box.lo[a];
+      view.cells[a] = map.placed() ? box.hi[a] - box.lo[a] : 0;
+    }
+  }
+  RIM_CUDA(cudaMemcpy(im.flags0.get(), map.level(0).flag_data(), size_t(im.levels[0].slots),
+                      cudaMemcpyHostToDevice));
+  if (++im.sync_stamp == 0) {
+    for (Impl::Level& lv : im.levels)
+      RIM_CUDA(cudaMemset(lv.sync_tags.get(), 0, size_t(lv.slots) * 4));
+    im.sync_stamp = 1;
+  }
+  RIM_CUDA(cudaMemset(im.dirty_counts.get(), 0, kMaxGpuLevels * 4));
+  im.tracking = true;
+  return absl::OkStatus();
+}
+
+absl::Status DeviceMap::SyncToHost(LocalMap* map, Decoder* decoder) {
+  Impl& im = *impl_;
+  RIM_CUDA(cudaStreamSynchronize(im.stream));
+  im.downloaded = 0;
+  if (im.tracking) {
+    int32_t counts[kMaxGpuLevels];
+    RIM_CUDA(cudaMemcpy(counts, im.dirty_counts.get(), sizeof(counts), cudaMemcpyDeviceToHost));
+    std::vector<int32_t> slots, steps;
+    std::vector<float> features, m, v;
+    for (int l = 0; l < int(im.levels.size()); ++l) {
+      const size_t n = size_t(counts[l]);
+      if (n == 0) continue;
+      RIM_RETURN_IF_ERROR(im.GrowPacked(n));
+      PackedRows p = im.Packed();
+      p.slots = im.levels[size_t(l)].dirty.get();
+      RIM_CUDA(LaunchGatherRows(im.grids.level[l], p, int(n), im.stream));
+      RIM_CUDA(cudaStreamSynchronize(im.stream));
+      slots.resize(n);
+      features.resize(n * kFeatureDim);
+      m.resize(n * kFeatureDim);
+      v.resize(n * kFeatureDim);
+      steps.resize(n);
+      RIM_CUDA(cudaMemcpy(slots.data(), p.slots, n * 4, cudaMemcpyDeviceToHost));
+      RIM_CUDA(cudaMemcpy(features.data(), p.features, n * 32, cudaMemcpyDeviceToHost));
+      RIM_CUDA(cudaMemcpy(m.data(), p.adam_m, n * 32, cudaMemcpyDeviceToHost));
+      RIM_CUDA(cudaMemcpy(v.data(), p.adam_v, n * 32, cudaMemcpyDeviceToHost));
+      RIM_CUDA(cudaMemcpy(steps.data(), p.steps, n * 4, cudaMemcpyDeviceToHost));
+      LocalMap::Level& dst = map->level(l);
+      for (size_t i = 0; i < n; ++i) {
+        std::memcpy(dst.features(slots[i]), &features[i * kFeatureDim], kFeatureDim * 4);
+        std::memcpy(dst.adam_m(slots[i]), &m[i * kFeatureDim], kFeatureDim * 4);
+        std::memcpy(dst.adam_v(slots[i]), &v[i * kFeatureDim], kFeatureDim * 4);
+        dst.adam_steps(slots[i]) = steps[i];
+      }
+      im.downloaded += int64_t(n);
+    }
+    im.tracking = false;
+  }
+  RIM_CUDA(cudaMemcpy(map->level(0).flag_data(), im.flags0.get(), size_t(im.levels[0].slots),
+                      cudaMemcpyDeviceToHost));
+  if (decoder != nullptr) RIM_RETURN_IF_ERROR(DownloadDecoder(decoder));
+  return absl::OkStatus();
+}
+
+int64_t DeviceMap::rows_uploaded() const { return impl_->uploaded; }
+int64_t DeviceMap::rows_downloaded() const { return impl_->downloaded; }
 
 absl::Status DeviceMap::Encode(const float* xyz, int n, float* features) {
   Impl& im = *impl_;
@@ -503,8 +644,9 @@ absl::StatusOr<float> DeviceMap::Backward(const float* xyz, int rows, int labell
 absl::Status DeviceMap::Step(const TrainSettings& settings, bool train_decoder) {
   Impl& im = *impl_;
   if (im.stepped) return absl::OkStatus();  // nothing prepared (or an empty batch)
+  // No wait here: the next Backward, a sync or a download waits for the stream, and reports a
+  // failed launch.
   RIM_RETURN_IF_ERROR(im.EnqueueStep(settings, train_decoder));
-  RIM_CUDA(cudaStreamSynchronize(im.stream));
   return absl::OkStatus();
 }
 

@@ -33,6 +33,10 @@ bool BuiltWithCuda();
 // device is visible or the index is out of range.
 absl::StatusOr<DeviceInfo> OpenDevice(int index);
 
+// The device index of a `train.device` value: "cuda" (0) or "cuda:N"; "cpu" and anything else
+// are an error naming train.device.
+absl::StatusOr<int> CudaDeviceIndex(const std::string& device);
+
 // What one training iteration needs besides the samples (Trainer's TrainStepInput and Adam).
 struct TrainSettings {
   float sigma_m = 0.05f;
@@ -60,6 +64,17 @@ class DeviceMap {
   // The decoder's parameters and Adam state.
   absl::Status UploadDecoder(const Decoder& decoder);
   absl::Status DownloadDecoder(Decoder* decoder) const;
+
+  // A Mapper's use, one sync window per frame, the host LocalMap staying the backing store.
+  // SyncFromHost, before the frame's iterations: the rows of lattice points that are new to the
+  // box since the last sync (the slide's entering slabs) and level 0's flags from the host; opens
+  // a sync window. SyncToHost, after them: the rows Step updated in the window, level 0's flags
+  // and, with `decoder`, the decoder back into the host copies.
+  absl::Status SyncFromHost(const LocalMap& map);
+  absl::Status SyncToHost(LocalMap* map, Decoder* decoder);
+  // Rows moved by the last SyncFromHost and SyncToHost (for timing and tests).
+  int64_t rows_uploaded() const;
+  int64_t rows_downloaded() const;
 
   // Features (n × L·D) of n points; NaN for a point outside the box.
   absl::Status Encode(const float* xyz, int n, float* features);

@@ -377,14 +377,8 @@ __global__ void __launch_bounds__(256) ScatterKernel(Grids g, TrainArgs a, Train
   }
 }
 
-__global__ void FeatureAdamKernel(Grids g, AdamArgs h, const int32_t* counts,
-                                  const int32_t* error) {
-  if (*error != 0) return;
-  const int l = blockIdx.y;
-  const int i = blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= counts[l]) return;
-  const LevelView& v = g.level[l];
-  const int32_t slot = v.touched[i];
+// Lazy Adam on one touched row, with its own step count.
+__device__ __forceinline__ void AdamRow(const LevelView& v, const AdamArgs& h, int32_t slot) {
   const int step = ++v.steps[slot];
   // Bias corrections in double, as AdamBiasTable computes them.
   const double b1t = pow(double(h.beta1), step), b2t = pow(double(h.beta2), step);
@@ -416,6 +410,52 @@ __global__ void FeatureAdamKernel(Grids g, AdamArgs h, const int32_t* counts,
   v4[1] = vr[1];
   g4[0] = make_float4(0.f, 0.f, 0.f, 0.f);
   g4[1] = make_float4(0.f, 0.f, 0.f, 0.f);
+}
+
+__global__ void FeatureAdamKernel(Grids g, AdamArgs h, const int32_t* counts, const int32_t* error,
+                                  int32_t* dirty_counts, uint32_t sync_stamp) {
+  if (*error != 0) return;
+  const int l = blockIdx.y;
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  const LevelView& v = g.level[l];
+  const bool live = i < counts[l];
+  const int32_t slot = live ? v.touched[i] : 0;
+  if (live) AdamRow(v, h, slot);
+  if (dirty_counts == nullptr) return;  // the same for the whole grid
+  // A row's first update in the sync window lists it for the copy back to the host; the warp's
+  // new rows take their places with one atomic add.
+  const bool fresh = live && atomicExch(&v.sync_tags[slot], sync_stamp) != sync_stamp;
+  const unsigned lanes = __ballot_sync(0xffffffffu, fresh);
+  if (lanes == 0) return;
+  const int lane = threadIdx.x & 31, leader = __ffs(lanes) - 1;
+  int base = 0;
+  if (lane == leader) base = atomicAdd(&dirty_counts[l], __popc(lanes));
+  base = __shfl_sync(0xffffffffu, base, leader);
+  if (fresh) v.dirty[base + __popc(lanes & ((1u << lane) - 1u))] = slot;
+}
+
+__global__ void ScatterRowsKernel(LevelView v, PackedRows rows, int n) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const int32_t slot = rows.slots[i];
+  for (int d = 0; d < kD; ++d) {
+    v.features[size_t(slot) * kD + d] = rows.features[size_t(i) * kD + d];
+    v.adam_m[size_t(slot) * kD + d] = rows.adam_m[size_t(i) * kD + d];
+    v.adam_v[size_t(slot) * kD + d] = rows.adam_v[size_t(i) * kD + d];
+  }
+  v.steps[slot] = rows.steps[i];
+}
+
+__global__ void GatherRowsKernel(LevelView v, PackedRows rows, int n) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const int32_t slot = rows.slots[i];
+  for (int d = 0; d < kD; ++d) {
+    rows.features[size_t(i) * kD + d] = v.features[size_t(slot) * kD + d];
+    rows.adam_m[size_t(i) * kD + d] = v.adam_m[size_t(slot) * kD + d];
+    rows.adam_v[size_t(i) * kD + d] = v.adam_v[size_t(slot) * kD + d];
+  }
+  rows.steps[i] = v.steps[slot];
 }
 
 __global__ void DecoderAdamKernel(AdamArgs h, float step_size, float inv_sqrt_bc2, int n,
@@ -621,11 +661,24 @@ int LaunchTrainBackward(const Grids& grids, const MlpShape& shape, const TrainAr
 }
 
 int LaunchFeatureAdam(const Grids& grids, const AdamArgs& adam, const int32_t* counts, int max_rows,
-                      const int32_t* error, void* stream) {
+                      const int32_t* error, int32_t* dirty_counts, uint32_t sync_stamp,
+                      void* stream) {
   if (max_rows <= 0) return int(cudaSuccess);
   const dim3 blocks(Blocks(max_rows, 256), grids.levels);
-  FeatureAdamKernel<<<blocks, 256, 0, static_cast<cudaStream_t>(stream)>>>(grids, adam, counts,
-                                                                           error);
+  FeatureAdamKernel<<<blocks, 256, 0, static_cast<cudaStream_t>(stream)>>>(
+      grids, adam, counts, error, dirty_counts, sync_stamp);
+  return int(cudaGetLastError());
+}
+
+int LaunchScatterRows(const LevelView& level, const PackedRows& rows, int n, void* stream) {
+  if (n <= 0) return int(cudaSuccess);
+  ScatterRowsKernel<<<Blocks(n, 256), 256, 0, static_cast<cudaStream_t>(stream)>>>(level, rows, n);
+  return int(cudaGetLastError());
+}
+
+int LaunchGatherRows(const LevelView& level, const PackedRows& rows, int n, void* stream) {
+  if (n <= 0) return int(cudaSuccess);
+  GatherRowsKernel<<<Blocks(n, 256), 256, 0, static_cast<cudaStream_t>(stream)>>>(level, rows, n);
   return int(cudaGetLastError());
 }
 

@@ -12,17 +12,19 @@ inline constexpr int kMaxGpuLevels = 6;
 
 // One level's dense grid in device memory, with the box it covers. Slots as LocalMap::Slot.
 struct LevelView {
-  float* features = nullptr;   // slots × D
-  float* adam_m = nullptr;     // slots × D
-  float* adam_v = nullptr;     // slots × D
-  int32_t* steps = nullptr;    // slots: per-row Adam step count
-  float* grad = nullptr;       // slots × D: the iteration's feature gradient (zero between)
-  uint32_t* tags = nullptr;    // slots: the stamp of the last iteration that touched the row
-  int32_t* touched = nullptr;  // rows touched this iteration (capacity: rows × 8)
-  int dims[3] = {0, 0, 0};     // storage size per axis
-  int lo[3] = {0, 0, 0};       // lattice box: lower corner (world lattice index)
-  int cells[3] = {0, 0, 0};    // cells per axis: a cell's lower corner lies in [lo, lo + cells)
-  double inv_h = 0;            // 1 / voxel size
+  float* features = nullptr;      // slots × D
+  float* adam_m = nullptr;        // slots × D
+  float* adam_v = nullptr;        // slots × D
+  int32_t* steps = nullptr;       // slots: per-row Adam step count
+  float* grad = nullptr;          // slots × D: the iteration's feature gradient (zero between)
+  uint32_t* tags = nullptr;       // slots: the stamp of the last iteration that touched the row
+  int32_t* touched = nullptr;     // rows touched this iteration (capacity: rows × 8)
+  uint32_t* sync_tags = nullptr;  // slots: the last sync window whose Adam pass updated the row
+  int32_t* dirty = nullptr;       // rows updated in this sync window (capacity: slots)
+  int dims[3] = {0, 0, 0};        // storage size per axis
+  int lo[3] = {0, 0, 0};          // lattice box: lower corner (world lattice index)
+  int cells[3] = {0, 0, 0};       // cells per axis: a cell's lower corner lies in [lo, lo + cells)
+  double inv_h = 0;               // 1 / voxel size
 };
 
 struct Grids {
@@ -74,8 +76,23 @@ int LaunchTrainBackward(const Grids& grids, const MlpShape& shape, const TrainAr
 struct AdamArgs {
   float lr, beta1, beta2, eps;
 };
+// With `dirty_counts` (per level), also appends each updated row to its level's dirty list the
+// first time in the sync window `sync_stamp`.
 int LaunchFeatureAdam(const Grids& grids, const AdamArgs& adam, const int32_t* counts, int max_rows,
-                      const int32_t* error, void* stream);
+                      const int32_t* error, int32_t* dirty_counts, uint32_t sync_stamp,
+                      void* stream);
+
+// Rows of one level, packed (features, Adam moments, step counts of n slots): written into the
+// slots (ScatterRows: host rows into the device copy) or read from them (GatherRows).
+struct PackedRows {
+  const int32_t* slots = nullptr;
+  float* features = nullptr;  // n × D
+  float* adam_m = nullptr;    // n × D
+  float* adam_v = nullptr;    // n × D
+  int32_t* steps = nullptr;   // n
+};
+int LaunchScatterRows(const LevelView& level, const PackedRows& rows, int n, void* stream);
+int LaunchGatherRows(const LevelView& level, const PackedRows& rows, int n, void* stream);
 
 // Adam on the decoder's n parameters with the bias corrections given (Decoder::Step's), then
 // clears the gradient.

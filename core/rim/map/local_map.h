@@ -79,6 +79,9 @@ class LocalMap {
     // Copies for tests and tools: every slot's features (slots × D) or flags, dense.
     std::vector<float> FeatureCopy() const;
     std::vector<uint8_t> FlagCopy() const;
+    // The flags of every slot, contiguous (for a bulk copy: the GPU path's sync).
+    const uint8_t* flag_data() const { return flags_.data(); }
+    uint8_t* flag_data() { return flags_.data(); }
     int64_t MemoryBytes() const;
     static int64_t MemoryBytesFor(const Int3& lattice_dims, int feature_dim);
 

@@ -130,6 +130,28 @@ absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outs
     grad_.Reset(*map_);
     grad_ready_ = true;
   }
+  DrawBatch(buffer, outside, timing, rays);
+  return PrepareBatch(train_decoder, timing);
+}
+
+absl::Status Trainer::SampleRows(const PointBuffer& buffer, const OutsideRays& outside,
+                                 IterationTiming* timing, int rays) {
+  DrawBatch(buffer, outside, timing, rays);
+  const double t0 = Now();
+  xyz_.clear();
+  if (batch_.size() > 0) BuildRows();
+  if (timing) timing->sample_s += Now() - t0;
+  return absl::OkStatus();
+}
+
+void Trainer::BuildRows() {
+  OrderBatchByCell(*map_, &batch_, &order_scratch_);
+  xyz_ = batch_.xyz;
+  if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
+}
+
+void Trainer::DrawBatch(const PointBuffer& buffer, const OutsideRays& outside,
+                        IterationTiming* timing, int rays) {
   const double t0 = Now();
   sampler_.Sample(buffer, outside, map_->min_m(), map_->max_m(), &batch_, &pool_, rays);
   const TransientConfig& tr = config_.transient;
@@ -146,7 +168,6 @@ absl::Status Trainer::Prepare(const PointBuffer& buffer, const OutsideRays& outs
                      map_->max_m().cast<float>(), &rng, &batch_);
   }
   if (timing) timing->sample_s += Now() - t0;
-  return PrepareBatch(train_decoder, timing);
 }
 
 absl::StatusOr<float> Trainer::IterateOn(const SampleBatch& batch, bool train_decoder,
@@ -164,9 +185,7 @@ absl::Status Trainer::PrepareBatch(bool train_decoder, IterationTiming* timing) 
   prepared_ = false;
   if (batch_.size() == 0) return absl::OkStatus();
   const double t0 = Now();
-  OrderBatchByCell(*map_, &batch_, &order_scratch_);
-  xyz_ = batch_.xyz;
-  if (config_.train.eikonal_weight > 0.f) AddEikonalProbes();
+  BuildRows();
   const int rows = int(xyz_.size() / 3);
   const double t1 = Now();
   features_.resize(size_t(rows) * map_->geometry().encoding_dim());

@@ -75,6 +75,13 @@ class Trainer {
   // `cleared` holds any. nullptr: none.
   void SetCleared(const ClearedPoints* cleared) { cleared_ = cleared; }
 
+  // The samples of one iteration without training on them, for the GPU path (docs/gpu.md): the
+  // same batch Prepare draws, labelled samples then eikonal probes in rows_xyz(), the labels in
+  // last_batch().labels. `rays` as for Prepare.
+  absl::Status SampleRows(const PointBuffer& buffer, const OutsideRays& outside,
+                          IterationTiming* timing, int rays = 0);
+  const std::vector<float>& rows_xyz() const { return xyz_; }
+
   Sampler& sampler() { return sampler_; }
   // The training threads, for other work of the mapper's between iterations (never during one).
   WorkerPool& pool() { return pool_; }
@@ -82,6 +89,11 @@ class Trainer {
 
  private:
   absl::Status PrepareBatch(bool train_decoder, IterationTiming* timing);
+  // Prepare's sampling: the batch (and the cleared samples where moving things stood).
+  void DrawBatch(const PointBuffer& buffer, const OutsideRays& outside, IterationTiming* timing,
+                 int rays);
+  // The batch in cell order, then xyz_: its positions and the eikonal probes.
+  void BuildRows();
   void AddEikonalProbes();
   // Gradient scatter, lazy Adam on the touched rows and observed marking, in one pool region.
   void UpdateFeatures(const float* grad_features);
