@@ -364,6 +364,7 @@ LONG500 = "2026-11-22-long500-half.maicity_online.csv"
 MOVING = "2026-11-28-moving-things.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
+GPU_MAP = "2026-11-28-gpu-rim-map.json"
 
 TABLES = {
     "speed": [
@@ -565,6 +566,28 @@ TABLES = {
             lambda r: [v / 1e6 for v in r.values(GPU, "memory_after_500")], {"digits": 0},
             lambda r: "before: " + fmt_range([v / 1e6 for v in r.values(GPU, "memory_before_500")],
                                              digits=0), None, [GPU]),
+        Row("`rim_map --device cuda`, `maicity`, an 80-frame rim_sim city, ms a frame",
+            lambda r: r.values(GPU_MAP, "ms_per_frame", run="cuda"), F1,
+            lambda r: "`--device cpu` on the same host: " + fmt_range(
+                r.values(GPU_MAP, "ms_per_frame", run="cpu-16")) + " (16 threads), " + fmt_range(
+                r.values(GPU_MAP, "ms_per_frame", run="cpu-2")) + " (2)",
+            ("≤ 10", ("<=", 10)), [GPU_MAP]),
+        Row("of which on the device: 30 iterations and the syncs with the host map (`step`), ms",
+            lambda r: r.values(GPU_MAP, "stages_ms_per_frame.step", run="cuda"), F1,
+            lambda r: "the CPU's encode, forward, backward and step, 16 threads: " + fmt_range(
+                [sum(r.values(GPU_MAP, f"stages_ms_per_frame.{k}", run="cpu-16")[0]
+                     for k in ("encode", "forward", "backward", "step"))]),
+            None, [GPU_MAP]),
+        Row("C-L1 of `rim_map --device cuda` (`rim_eval --box 10,10,-3,3`), cm",
+            lambda r: r.values(GPU_MAP, "c_l1_cm", run="cuda"), F2,
+            lambda r: "`--device cpu`: " + fmt_range(r.values(GPU_MAP, "c_l1_cm", run="cpu-2"),
+                                                     digits=2),
+            None, [GPU_MAP]),
+        Row("a frame's syncs in `rim_gpu_bench`: entering rows and flags over, changed rows back, ms",
+            lambda r: [a + b for a, b in zip(r.values(GPU, "frame_sync.sync_from_host_ms"),
+                                             r.values(GPU, "frame_sync.sync_to_host_ms"))], F1,
+            lambda r: "30 iterations: " + fmt_range(r.values(GPU, "frame_sync.iterations_30_ms")),
+            None, [GPU]),
         Row("robots per GPU, each 30 iterations a frame at 10 Hz (training only)",
             lambda r: r.values(GPU, "robots_real_time"), {"digits": 0}, "–",
             ("≥ 20", (">=", 20)), [GPU]),
