@@ -251,13 +251,15 @@ absl::Status Run(const Args& args) {
     double seconds;
     bool per_iteration;
   };
-  // "transient" is part of "preprocess": the moving-things filter.
-  const Row rows[] = {
+  // "transient" is part of "preprocess": the moving-things filter. With a GPU, "step" is the
+  // iterations on the device and "sync" its part that moves rows to and from the host map.
+  std::vector<Row> rows = {
       {"slide", sum.slide_s, false},         {"preprocess", sum.preprocess_s, false},
       {"transient", sum.transient_s, false}, {"sample", sum.sample_s, true},
       {"encode", sum.encode_s, true},        {"forward", sum.forward_s, true},
       {"backward", sum.backward_s, true},    {"step", sum.step_s, true},
       {"distance", sum.distance_s, false}};
+  if (config.train.device != "cpu") rows.insert(rows.end() - 1, {"sync", sum.sync_s, false});
   std::printf("\n%-12s %12s %12s\n", "module", "ms/frame", "ms/iter");
   for (const Row& r : rows) {
     if (r.per_iteration)
@@ -303,7 +305,8 @@ absl::Status Run(const Args& args) {
       {"frames", last - first},
       {"iterations_per_frame", JsonNumber(iters / frames, 3)},
       {"peak_rss_mb", JsonNumber(PeakRssMb(), 1)},
-      {"device_memory_mb", nullptr},
+      {"device_memory_mb",
+       final_stats.device == "cpu" ? Json(nullptr) : JsonNumber(final_stats.device_bytes / 1e6, 1)},
       {"mesh_s", JsonNumber(mesh_s, 3)},
       {"transient_buffer_removed", final_stats.transient_buffer_removed},
       {"transient_deferred_removed", final_stats.transient_deferred_removed},
@@ -324,7 +327,8 @@ absl::Status Run(const Args& args) {
   }
   const Json run = {{"rim_version", kRimVersion}, {"libtorch_version", TorchVersion()},
                     {"dataset", args.dataset},    {"layout", io::LayoutName(dataset->layout())},
-                    {"frames", {first, last}},    {"config", config_json}};
+                    {"frames", {first, last}},    {"device", final_stats.device},
+                    {"config", config_json}};
   for (const auto& [name, text] :
        {std::pair<std::string, std::string>{"timing.json", io::DumpJson(timing)},
         {"run.json", io::DumpJson(run, 2)}}) {

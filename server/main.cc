@@ -24,6 +24,7 @@
 
 #include "absl/cleanup/cleanup.h"
 #include "rim/base/version.h"
+#include "rim/gpu/device_map.h"
 #include "server/auth/security.h"
 #include "server/config/server_config.h"
 #include "server/http/http_api.h"
@@ -71,6 +72,20 @@ int Run(int argc, char** argv) {
   }
   std::cerr << "rim_server " << rim::kRimVersion << " effective config:\n"
             << config->ToString() << std::flush;
+  // A GPU that is not there is a bad setting, found now rather than at the first session.
+  std::string device_name = "cpu";
+  if (config->device != "cpu") {
+    absl::StatusOr<int> index = rim::gpu::CudaDeviceIndex(config->device);
+    absl::StatusOr<rim::gpu::DeviceInfo> device =
+        index.ok() ? rim::gpu::OpenDevice(*index) : index.status();
+    if (!device.ok()) {
+      std::cerr << "rim_server: --device " << config->device << ": " << device.status().message()
+                << "\n";
+      return 2;
+    }
+    device_name = config->device + " (" + device->name + ")";
+    std::cerr << "rim_server: sessions train on " << device_name << "\n";
+  }
 
   // SIGTERM and SIGINT are blocked on every thread rim and gRPC start, and the main thread waits
   // for them with a signalfd: no signal handler has to run for a shutdown. A handler would run on
@@ -133,6 +148,7 @@ int Run(int argc, char** argv) {
               << " CPU-seconds per second\n";
   manager_options.data_dir = config->data_dir;
   manager_options.default_preset = config->default_preset;
+  manager_options.default_device = config->device;
   manager_options.max_sessions = config->max_sessions;
   manager_options.queue_length = config->queue_length;
   manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
@@ -169,6 +185,7 @@ int Run(int argc, char** argv) {
   limits.queue_length = config->queue_length;
   limits.max_sessions = config->max_sessions;
   limits.host_memory_budget_bytes = config->host_memory_budget_bytes;
+  limits.device = device_name;
   rim::server::RimService service(&sessions, limits, &security->authorizer);
 
   // The browser dashboard and its JSON API (docs/dashboard.md), on civetweb's own threads.

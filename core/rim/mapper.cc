@@ -54,6 +54,7 @@ Mapper::Mapper(const MapperConfig& config) : config_(config) {
   distance_->SetReturnsBlendRadius(0.5f * config.deferred.voxel_m);
   mesh_changes_ = std::make_unique<MeshChangeLog>();
   mesh_cache_ = std::make_unique<MeshBlockCache>();
+  device_name_ = config.train.device;  // the GPU's name once its device copy exists
 }
 
 Mapper::~Mapper() = default;
@@ -171,6 +172,7 @@ absl::Status Mapper::IntegrateScan(const PosedScan& scan, int iterations, StageT
   t.forward_s = it.forward_s;
   t.backward_s = it.backward_s;
   t.step_s = it.step_s;
+  t.sync_s = it.sync_s;
   t.iterations = n_iter;
   t.rays_per_iteration = rays;
   t.loss = n_iter > 0 ? float(loss_sum / n_iter) : 0.f;
@@ -209,8 +211,9 @@ absl::StatusOr<int> Mapper::IterateOnDevice(int iterations, int rays, bool train
                                             IterationTiming* it, double* loss_sum) {
   if (!device_) {
     RIM_ASSIGN_OR_RETURN(const int index, gpu::CudaDeviceIndex(config_.train.device));
-    std::shared_lock lock(mu_);
+    std::unique_lock lock(mu_);  // Stats reads device_ beside the frame
     RIM_ASSIGN_OR_RETURN(device_, gpu::DeviceMap::Create(*local_map_, *decoder_, index));
+    device_name_ = device_->device().name;
   }
   double t0 = Now();
   {
@@ -218,7 +221,10 @@ absl::StatusOr<int> Mapper::IterateOnDevice(int iterations, int rays, bool train
     std::shared_lock lock(mu_);
     RIM_RETURN_IF_ERROR(device_->SyncFromHost(*local_map_));
   }
-  if (it) it->step_s += Now() - t0;
+  if (it) {
+    it->step_s += Now() - t0;
+    it->sync_s += Now() - t0;
+  }
   const gpu::TrainSettings settings = gpu::TrainSettings::From(config_, *geometry_);
   int done = 0;
   absl::Status status;
@@ -248,7 +254,11 @@ absl::StatusOr<int> Mapper::IterateOnDevice(int iterations, int rays, bool train
   const absl::Status back =
       device_->SyncToHost(local_map_.get(), train_decoder ? decoder_.get() : nullptr);
   map_version_.fetch_add(uint64_t(done));
-  if (it) it->step_s += Now() - t0;
+  device_bytes_ = device_->device_bytes();
+  if (it) {
+    it->step_s += Now() - t0;
+    it->sync_s += Now() - t0;
+  }
   RIM_RETURN_IF_ERROR(status);
   RIM_RETURN_IF_ERROR(back);
   return done;
@@ -281,6 +291,7 @@ absl::StatusOr<int> Mapper::TrainBetweenFrames(int iterations, int rays_per_iter
     timing->forward_s += it.forward_s;
     timing->backward_s += it.backward_s;
     timing->step_s += it.step_s;
+    timing->sync_s += it.sync_s;
     timing->train_s += Now() - start;
     timing->total_s += Now() - start;
     timing->iterations += done;
@@ -320,6 +331,8 @@ MapperStats Mapper::Stats() const {
   s.submaps_frozen = st.frozen;
   s.submaps_on_disk = st.on_disk;
   s.decoder_frozen = frames_ >= config_.decoder.freeze_after_frames;
+  s.device = device_name_;
+  s.device_bytes = device_bytes_;
   return s;
 }
 

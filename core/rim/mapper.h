@@ -51,6 +51,7 @@ struct StageTimings {
          step_s = 0, total_s = 0;
   double distance_s = 0;   // distance field refresh (every query.refresh_frames frames)
   double transient_s = 0;  // of preprocess_s: the moving-things filter (train/transient.h)
+  double sync_s = 0;       // of step_s, train.device = cuda: the syncs with the host map
   // Wall time of the iterations: the stages above from sample to step, and what they waited for
   // (the map's lock, the training threads) between them.
   double train_s = 0;
@@ -70,6 +71,7 @@ struct StageTimings {
     total_s += o.total_s;
     distance_s += o.distance_s;
     transient_s += o.transient_s;
+    sync_s += o.sync_s;
     train_s += o.train_s;
     iterations += o.iterations;
     return *this;
@@ -120,6 +122,10 @@ struct MapperStats {
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
   bool decoder_frozen = false;
+  // Where the training iterations run (train.device): "cpu", or the GPU's name once the first
+  // iteration made its device copy; that copy's bytes of device memory.
+  std::string device = "cpu";
+  int64_t device_bytes = 0;
 };
 
 class Mapper {
@@ -286,7 +292,9 @@ class Mapper {
   std::unique_ptr<PointBuffer> buffer_;
   std::unique_ptr<DeferredPoints> deferred_;
   std::unique_ptr<Trainer> trainer_;
-  std::unique_ptr<gpu::DeviceMap> device_;      // train.device = cuda: made at the first iteration
+  std::unique_ptr<gpu::DeviceMap> device_;  // train.device = cuda: made at the first iteration
+  std::string device_name_ = "cpu";         // for Stats, under mu_
+  int64_t device_bytes_ = 0;
   std::unique_ptr<TransientFilter> transient_;  // null when transient.enabled is false
   double preprocess_transient_s_ = 0;  // the last Preprocess's time in transient_ (frame_mu_)
   std::unique_ptr<DistanceField> distance_;

@@ -13,6 +13,7 @@
 #include "absl/strings/str_replace.h"
 #include "absl/strings/string_view.h"
 #include "rim/base/flags.h"
+#include "rim/gpu/device_map.h"
 
 namespace rim::server {
 namespace {
@@ -41,6 +42,14 @@ absl::Status Apply(const std::string& raw_name, const std::string& value, Server
     c->web_root = value;
   } else if (name == "preset") {
     c->default_preset = value;
+  } else if (name == "device") {
+    if (value != "cpu") {
+      absl::StatusOr<int> index = gpu::CudaDeviceIndex(value);
+      if (!index.ok())
+        return absl::InvalidArgumentError(
+            absl::StrCat("--device: '", value, "' is not cpu, cuda or cuda:N"));
+    }
+    c->device = value;
   } else if (name == "max-sessions") {
     return ParseInt(name, value, 1, &c->max_sessions);
   } else if (name == "queue-length") {
@@ -153,6 +162,9 @@ constexpr Setting kSettings[] = {
     {"http", false, "ADDR", "host:port of the browser dashboard and its JSON API (default none)"},
     {"web-root", false, "DIR", "the dashboard's files (default: found next to the binary)"},
     {"preset", false, "NAME", "the sessions' default config preset (default maicity)"},
+    {"device", false, "cpu|cuda[:N]",
+     "where sessions train unless their config sets train.device\n"
+     "(default cpu; cuda needs a -DRIM_CUDA=ON build, docs/gpu.md)"},
     {"max-sessions", false, "N", "sessions open at once (default 16)"},
     {"queue-length", false, "N", "scans queued per session before backpressure (default 8)"},
     {"max-query-points", false, "N", "points in one query (default 1048576)"},
@@ -245,6 +257,7 @@ std::string ServerConfig::ToString() const {
     << "web_root = " << web_root << "\n"
     << "config = " << config_file << "\n"
     << "preset = " << default_preset << "\n"
+    << "device = " << device << "\n"
     << "max_sessions = " << max_sessions << "\n"
     << "queue_length = " << queue_length << "\n"
     << "checkpoint_every_frames = " << checkpoint_every_frames << "\n"

@@ -24,6 +24,9 @@ struct ServerConfig {
   // --hash-token TOKEN|-: print the token's digest and exit (no server is started).
   std::optional<std::string> hash_token;
   std::string default_preset = "maicity";
+  // Where sessions train unless their config sets train.device: "cpu", "cuda" or "cuda:N"
+  // (docs/gpu.md; a build with -DRIM_CUDA=ON). Checked at start.
+  std::string device = "cpu";
   int max_sessions = 16;
   int queue_length = 8;
   int checkpoint_every_frames = 100;  // 0: only on SaveSession, close and shutdown

@@ -18,6 +18,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "rim/base/version.h"
+#include "rim/gpu/device_map.h"
 #include "rim/mesh/mesher.h"
 #include "server/session/session_manager.h"
 
@@ -227,7 +228,11 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
 
   std::vector<prometheus::MetricFamily> Collect() const override {
     auto build = GaugeFamily("rim_build_info", "Always 1; the labels say what is running");
-    AddGauge(&build, {{"version", kRimVersion}, {"build", "cpu"}, {"libtorch", TorchVersion()}}, 1);
+    AddGauge(&build,
+             {{"version", kRimVersion},
+              {"build", gpu::BuiltWithCuda() ? "cuda" : "cpu"},
+              {"libtorch", TorchVersion()}},
+             1);
     auto active = GaugeFamily("rim_sessions_active", "Sessions currently open");
     auto queue = GaugeFamily("rim_ingest_queue_depth", "Accepted scans waiting for the trainer");
     auto lag = GaugeFamily("rim_training_lag_frames", "Accepted minus integrated scans");
@@ -261,7 +266,10 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     auto skipped_share = GaugeFamily(
         "rim_mesh_blocks_skipped_share",
         "Share of the checked mesh blocks kept without re-meshing, since the session started");
-    double sessions = 0;
+    auto session_device =
+        GaugeFamily("rim_session_device_info",
+                    "Always 1; the label says where the session trains: cpu, or the GPU's name");
+    double sessions = 0, device_bytes = 0;
     if (sessions_ != nullptr) {
       for (const auto& session : sessions_->List()) {
         ++sessions;
@@ -274,6 +282,8 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
         AddGauge(&rays, id, s.rays_per_iteration);
         AddGauge(&loss, id, s.last_loss);
         AddGauge(&real_time, id, s.real_time ? 1 : 0);
+        AddGauge(&session_device, {id[0], {"device", m.device}}, 1);
+        device_bytes += double(m.device_bytes);
         AddGauge(&submaps, {id[0], {"state", "active"}}, m.submaps_active);
         AddGauge(&submaps, {id[0], {"state", "frozen"}}, m.submaps_frozen);
         AddGauge(&submaps, {id[0], {"state", "on_disk"}}, m.submaps_on_disk);
@@ -297,10 +307,10 @@ class ServerMetrics::SessionCollector : public prometheus::Collectable {
     AddGauge(&rss, {}, double(ResidentBytes()));
     auto device = GaugeFamily("rim_device_memory_bytes",
                               "GPU memory allocated by the server; 0 on the CPU build");
-    AddGauge(&device, {}, 0);
-    return {build,     active,        queue,  lag,        iterations, rays,      loss,
-            real_time, submaps,       memory, checkpoint, wal,        transient, checked,
-            skipped,   skipped_share, budget, rss,        device};
+    AddGauge(&device, {}, device_bytes);
+    return {build,     active,        queue,  lag,        iterations, rays,          loss,
+            real_time, submaps,       memory, checkpoint, wal,        transient,     checked,
+            skipped,   skipped_share, budget, rss,        device,     session_device};
   }
 
  private:

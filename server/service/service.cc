@@ -8,6 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "rim/base/version.h"
 #include "rim/config/config.h"
+#include "rim/gpu/device_map.h"
 #include "server/service/scan_convert.h"
 #include "server/service/status_mapping.h"
 
@@ -240,8 +241,8 @@ grpc::ServerUnaryReactor* RimService::GetServerInfo(grpc::CallbackServerContext*
   if (auto principal = auth_->Authorize(*ctx, Rpc::kGetServerInfo); !principal.ok())
     return Done(ctx, principal.status());
   response->set_version(kRimVersion);
-  response->set_build("cpu");
-  response->set_device("cpu");
+  response->set_build(gpu::BuiltWithCuda() ? "cuda" : "cpu");
+  response->set_device(limits_.device);
   response->set_libtorch_version(TorchVersion());
   response->set_max_sessions(uint32_t(limits_.max_sessions));
   response->set_max_points_per_scan(uint32_t(limits_.max_points_per_scan));

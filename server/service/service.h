@@ -21,6 +21,8 @@ struct ServiceLimits {
   int queue_length = 8;
   int max_sessions = 16;
   uint64_t host_memory_budget_bytes = 0;
+  // Where sessions train by default (--device): "cpu", or "cuda:N (the GPU's name)".
+  std::string device = "cpu";
   // Long-lived streams open at once, all clients together (StreamScans, StreamQuerySdf,
   // WatchMeshTiles): each holds reactor state and a watch a thread of its own.
   int max_streams = 128;

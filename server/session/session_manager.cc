@@ -120,6 +120,7 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
   auto config = MakePreset(preset_name);
   if (!config.ok())
     return absl::InvalidArgumentError(absl::StrCat("preset: ", config.status().message()));
+  config->train.device = options_.default_device;  // an override may still choose
   for (const auto& [key, value] : overrides) {
     absl::Status s = ApplyOverride(key, value, &*config);
     if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat("overrides: ", s.message()));

@@ -22,6 +22,7 @@ namespace rim::server {
 struct SessionManagerOptions {
   std::string data_dir;
   std::string default_preset = "maicity";
+  std::string default_device = "cpu";  // train.device of sessions whose config does not set it
   int max_sessions = 16;
   int queue_length = 8;
   int checkpoint_every_frames = 100;

@@ -14,6 +14,7 @@
 #include "client/client.h"
 #include "client/wire.h"
 #include "gmock/gmock.h"
+#include "rim/gpu/device_map.h"
 #include "rim/v1/rim.grpc.pb.h"
 #include "server/auth/auth.h"
 #include "support/server_process.h"
@@ -246,6 +247,22 @@ TEST_F(ServerAuthTest, HashTokenPrintsTheDigestForTheTokensFile) {
   EXPECT_EQ(direct.out, "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad\n");
   const auto piped = testing_support::RunProcess({RIM_SERVER_BIN, "--hash-token", "-"}, "abc\n");
   EXPECT_EQ(piped.out, direct.out);
+}
+
+// --device names a GPU; where the build or the machine has none, the server refuses to start
+// (exit 2) and says why, before it opens any port.
+TEST_F(ServerAuthTest, DeviceWithoutAGpuIsRefusedAtStart) {
+  if (gpu::BuiltWithCuda() && gpu::OpenDevice(0).ok()) GTEST_SKIP() << "a CUDA device is here";
+  const std::string dir = ::testing::TempDir() + "/device_refused";
+  const auto r = testing_support::RunProcess(
+      {RIM_SERVER_BIN, "--data-dir", dir, "--listen", "127.0.0.1:0", "--device", "cuda"});
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_THAT(r.err, HasSubstr("--device cuda"));
+  if (!gpu::BuiltWithCuda()) EXPECT_THAT(r.err, HasSubstr("-DRIM_CUDA=ON"));
+  const auto bad = testing_support::RunProcess(
+      {RIM_SERVER_BIN, "--data-dir", dir, "--listen", "127.0.0.1:0", "--device", "gpu0"});
+  EXPECT_EQ(bad.exit_code, 2) << bad.err;
+  EXPECT_THAT(bad.err, HasSubstr("--device: 'gpu0' is not cpu, cuda or cuda:N"));
 }
 
 TEST_F(ServerAuthTest, RimctlSendsItsToken) {

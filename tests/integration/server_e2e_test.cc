@@ -173,6 +173,7 @@ TEST_F(ServerE2eTest, ServerInfo) {
   rim::v1::ServerInfo info;
   ASSERT_TRUE(g_stub->GetServerInfo(&ctx, rim::v1::GetServerInfoRequest(), &info).ok());
   EXPECT_EQ(info.build(), "cpu");
+  EXPECT_EQ(info.device(), "cpu");  // no --device
   EXPECT_EQ(info.max_sessions(), 4u);
   EXPECT_GE(info.presets_size(), 5);
 }

@@ -161,6 +161,22 @@ absl::StatusOr<ServerConfig> Parse(std::vector<std::string> args) {
   return ParseServerConfig(int(argv.size()), argv.data());
 }
 
+TEST(ServerConfigDeviceTest, DeviceIsCpuCudaOrCudaN) {
+  auto none = Parse({"--data-dir", "/d"});
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_EQ(none->device, "cpu");
+  for (const char* good : {"cpu", "cuda", "cuda:1"}) {
+    auto c = Parse({"--data-dir", "/d", "--device", good});
+    ASSERT_TRUE(c.ok()) << good << ": " << c.status();
+    EXPECT_EQ(c->device, good);
+  }
+  for (const char* bad : {"gpu", "cuda:", "cuda:-1", "CUDA"}) {
+    auto c = Parse({"--data-dir", "/d", "--device", bad});
+    ASSERT_FALSE(c.ok()) << bad;
+    EXPECT_THAT(std::string(c.status().message()), HasSubstr("--device")) << bad;
+  }
+}
+
 TEST(AuthTest, ExposureNeedsTokensOrInsecure) {
   auto open = Parse({"--data-dir", "/d", "--listen", "0.0.0.0:50051"});
   ASSERT_TRUE(open.ok()) << open.status();

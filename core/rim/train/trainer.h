@@ -22,6 +22,7 @@ class ClearedPoints;
 
 struct IterationTiming {
   double sample_s = 0, encode_s = 0, forward_s = 0, backward_s = 0, step_s = 0;
+  double sync_s = 0;  // of step_s, on the GPU path: the syncs with the host map (docs/gpu.md)
 };
 
 // Lazy Adam on touched rows [begin, end) of one level: each row moves with its own step count and
