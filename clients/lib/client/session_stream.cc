@@ -8,6 +8,8 @@
 // breaks, a new one sends the kept scans again, in order and marked `resend`, then goes on with
 // the source. The summary counts each sequence once, however many times it was sent.
 #include <algorithm>
+#include <chrono>
+#include <condition_variable>
 #include <map>
 #include <mutex>
 #include <set>
@@ -50,6 +52,7 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
   std::mutex mu;  // guards everything below that the reader thread touches
   StreamSummary summary;
   auto last_ack = start;
+  auto last_progress = start;                    // the last ack, or the start of the current stream
   std::map<uint64_t, rim::v1::Scan> unfinished;  // sent, no final ack yet, by sequence
   std::set<uint64_t> accepted, integrated;
   std::map<uint64_t, StreamSummary::Rejection> rejected;
@@ -66,12 +69,36 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     // frame fully, held back by its queue (docs/service.md, "Replays keep the offline map").
     if (options.real_time.value_or(options.rate_hz > 0)) context.AddMetadata(kRealTimeHeader, "1");
     auto stream = c.stub().StreamScans(&context);
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      last_progress = std::chrono::steady_clock::now();
+    }
+    // Cancels a stream that went silent with scans unacknowledged (StreamOptions::stall_timeout);
+    // Finish then says CANCELLED, and the stream is retried.
+    std::mutex watch_mu;
+    std::condition_variable watch_cv;
+    bool stream_over = false, stalled = false;
+    std::thread watchdog([&] {
+      if (options.max_retries <= 0 || options.stall_timeout.count() <= 0) return;
+      std::unique_lock<std::mutex> watch(watch_mu);
+      while (
+          !watch_cv.wait_for(watch, std::chrono::milliseconds(100), [&] { return stream_over; })) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (!unfinished.empty() &&
+            std::chrono::steady_clock::now() - last_progress > options.stall_timeout) {
+          stalled = true;
+          context.TryCancel();
+          return;
+        }
+      }
+    });
     std::thread reader([&] {
       rim::v1::ScanAck ack;
       while (stream->Read(&ack)) {
         {
           std::lock_guard<std::mutex> lock(mu);
           last_ack = std::chrono::steady_clock::now();
+          last_progress = last_ack;
           summary.map_version = std::max(summary.map_version, ack.map_version());
           const uint64_t seq = ack.sequence();
           switch (ack.state()) {
@@ -154,11 +181,18 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     stream->WritesDone();
     reader.join();
     const grpc::Status status = stream->Finish();
+    {
+      std::lock_guard<std::mutex> watch(watch_mu);
+      stream_over = true;
+    }
+    watch_cv.notify_all();
+    watchdog.join();
     bool again = false;
     {
       std::lock_guard<std::mutex> lock(mu);
       again = attempt < options.max_retries && source_status.ok() &&
-              (!status.ok() ? Retryable(status.error_code()) : !source_done || !unfinished.empty());
+              (stalled || (!status.ok() ? Retryable(status.error_code())
+                                        : !source_done || !unfinished.empty()));
     }
     if (!again) {
       std::lock_guard<std::mutex> lock(mu);
