@@ -1,6 +1,7 @@
 // The GPU path's kernels (kernels.h): the training iteration over the local map's dense grids,
-// encoding, and SDF/gradient queries. One thread per point or row throughout; the decoder's
-// parameters sit in shared memory, where every thread of a warp reads the same word at once.
+// encoding, and SDF/gradient queries. One thread per point or row, except the gradient scatter
+// (one per row, level and corner); the decoder's parameters sit in shared memory, where every
+// thread of a warp reads the same word at once.
 #include <cuda_runtime.h>
 
 #include <cmath>
