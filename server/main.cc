@@ -154,6 +154,7 @@ int Run(int argc, char** argv) {
   manager_options.checkpoint_every_frames = config->checkpoint_every_frames;
   manager_options.take_over = config->shared_sessions;
   manager_options.replica_id = config->replica_id;
+  manager_options.log = [](const std::string& line) { std::cerr << "rim_server: " + line + "\n"; };
   if (manager_options.replica_id.empty()) {
     char host[256] = {};
     gethostname(host, sizeof(host) - 1);

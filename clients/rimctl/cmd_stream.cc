@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <iostream>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/wire.h"
 #include "rimctl/commands.h"
@@ -124,6 +125,10 @@ int RunStream(const std::vector<std::string>& words, const Io& io) {
   options.max_retries = int(*retries);
   options.on_ack = [&](const rim::v1::ScanAck& ack) { progress.OnAck(ack); };
   options.on_sent = [&](uint64_t sent) { progress.OnSent(sent); };
+  options.on_retry = [&](int retry, const absl::Status& why) {
+    progress.Note(absl::StrCat("stream: broken (", why.ToString(), "); opening it again (retry ",
+                               retry, " of ", options.max_retries, ")"));
+  };
   long next = first;
   const FrameSource& frames = **source;
   auto summary = client->Session(robot).Stream(

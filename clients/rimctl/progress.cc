@@ -33,6 +33,13 @@ void StreamProgress::OnAck(const rim::v1::ScanAck& ack) {
   DrawLocked(false);
 }
 
+void StreamProgress::Note(const std::string& line) {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::fprintf(out_, tty_ ? "\r%s\x1b[K\n" : "%s\n", line.c_str());
+  std::fflush(out_);
+  if (tty_) DrawLocked(true);
+}
+
 void StreamProgress::Finish() {
   std::lock_guard<std::mutex> lock(mu_);
   DrawLocked(true);

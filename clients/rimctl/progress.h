@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <mutex>
+#include <string>
 
 #include "rim/v1/rim.pb.h"
 
@@ -19,6 +20,8 @@ class StreamProgress {
   // Thread-safe: called from the writer and the ack reader threads.
   void OnSent(uint64_t sent);
   void OnAck(const rim::v1::ScanAck& ack);
+  // Prints a line of its own (on a terminal: above the bar, which is then drawn again).
+  void Note(const std::string& line);
   // Draws the final state (and ends the bar's line on a terminal).
   void Finish();
 

@@ -197,7 +197,19 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& 
   // one. Two calls racing here both try; one loads, the other finds it open (ALREADY_EXISTS).
   std::error_code ec;
   if (!std::filesystem::exists(AbsoluteDir(robot_id) + "/config.rimf", ec)) return found;
+  const std::string previous = SessionLease::DescribeOwner(AbsoluteDir(robot_id));
+  const auto load_start = std::chrono::steady_clock::now();
   auto loaded = Load(robot_id);
+  if (options_.log && (loaded.ok() || loaded.status().code() != absl::StatusCode::kAlreadyExists)) {
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
+    options_.log(loaded.ok() ? absl::StrFormat("session %s taken over (last held by %s): %d "
+                                               "frames, opened in %.2f s",
+                                               robot_id, previous.empty() ? "nobody" : previous,
+                                               (*loaded)->mapper().frames(), seconds)
+                             : absl::StrFormat("session %s: take-over failed after %.2f s: %s",
+                                               robot_id, seconds, loaded.status().ToString()));
+  }
   if (loaded.ok() || loaded.status().code() != absl::StatusCode::kAlreadyExists) return loaded;
   for (int i = 0; i < 600; ++i) {  // the racing load finishes (pending_), then it is open
     auto open = Find(robot_id);

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <atomic>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -39,6 +40,9 @@ struct SessionManagerOptions {
   // Replicas share the data dir: a call about a session that no replica has open opens it here
   // (its last checkpoint, then its log), as LoadSession would.
   bool take_over = false;
+  // Receives a line for each take-over (who held the session, how long opening it took, or why it
+  // failed); rim_server writes them to its log. May be empty.
+  std::function<void(const std::string&)> log;
 };
 
 // Host memory a session's map holds: live grids with optimiser state, sub-maps in memory, and the

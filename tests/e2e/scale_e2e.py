@@ -246,8 +246,10 @@ def main() -> int:
             except subprocess.TimeoutExpired:
                 p.kill()
                 code = -1
+            # A failed stream shows all it printed: its retries and their reasons.
+            shown = "".join(outputs[robot][-6:] if code == 0 else outputs[robot]).strip()
             f.check(code == 0, f"rimctl stream {robot} exit {code}: "
-                    f"{''.join(outputs[robot][-6:]).strip()[-1200:]}")
+                    f"{shown[-1200:] if code == 0 else shown[-6000:]}")
         for t in readers:
             t.join(10)
 

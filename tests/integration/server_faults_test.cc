@@ -7,9 +7,11 @@
 #include <sys/stat.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -77,6 +79,65 @@ TEST(ServerFaultsTest, RobotDisconnectingMidStreamKeepsWhatWasAccepted) {
   auto more = client->Session("flaky").Stream(GroundScans(2));
   ASSERT_TRUE(more.ok()) << more.status();
   EXPECT_EQ(more->integrated, 2u);
+  EXPECT_EQ((*server)->Stop().value_or(-1), 0);
+}
+
+// A server that stops answering without closing anything (here frozen with SIGSTOP; behind a
+// proxy, a replica that died under it) leaves the stream open and silent. The client's stall
+// timeout cancels it and opens new streams, each watched from its start, until the server answers
+// again; then every scan is integrated exactly once.
+TEST(ServerFaultsTest, SilentServerStreamIsCancelledAndRetried) {
+  auto server = ServerProcess::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto client = Client::Connect((*server)->address());
+  ASSERT_TRUE(client.ok());
+  ASSERT_TRUE(client->CreateSession("frozen", "maicity", kSmallMap).ok());
+
+  const std::vector<PosedScan> scans = GroundScans(8);
+  StreamOptions options;
+  options.max_retries = 20;
+  options.retry_backoff = 100ms;
+  options.stall_timeout = 1500ms;
+  std::vector<std::string> reasons;
+  std::mutex reasons_mu;
+  options.on_retry = [&](int retry, const absl::Status& why) {
+    std::lock_guard<std::mutex> lock(reasons_mu);
+    EXPECT_EQ(retry, int(reasons.size()) + 1);
+    reasons.push_back(why.ToString());
+  };
+  size_t next = 0;
+  const pid_t pid = (*server)->pid();
+  std::thread thaw;
+  auto summary = client->Session("frozen").Stream(
+      [&](rim::v1::Scan* scan) -> absl::StatusOr<bool> {
+        if (next == scans.size()) return false;
+        if (next == 3) {
+          // The first three are integrated; then the server freezes for 5 s, longer than three
+          // stall timeouts, while the next scans go out.
+          for (int i = 0; i < 400; ++i) {
+            auto info = client->GetSession("frozen");
+            if (info.ok() && info->integrated_frames() >= 3) break;
+            std::this_thread::sleep_for(25ms);
+          }
+          EXPECT_EQ(kill(pid, SIGSTOP), 0);
+          thaw = std::thread([pid] {
+            std::this_thread::sleep_for(5s);
+            kill(pid, SIGCONT);
+          });
+        }
+        *scan = ScanToProto(scans[next], "frozen", 0);
+        ++next;
+        return true;
+      },
+      options);
+  if (thaw.joinable()) thaw.join();
+  ASSERT_TRUE(summary.ok()) << summary.status();
+  EXPECT_EQ(summary->integrated, scans.size());
+  EXPECT_EQ(summary->rejected, 0u);
+  EXPECT_GE(summary->retries, 2);  // at least two silent streams were given up
+  ASSERT_FALSE(reasons.empty());
+  EXPECT_THAT(reasons[0], HasSubstr("no ack for 1.5 s"));
+  EXPECT_EQ(WaitSettled(*client, "frozen").integrated_frames(), scans.size());
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }
 

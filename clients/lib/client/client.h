@@ -104,11 +104,14 @@ struct StreamOptions {
   // session over. Needs scan sequences that increase across the robot's streams. 0: no retries.
   int max_retries = 0;
   std::chrono::milliseconds retry_backoff{1000};
-  // With retries: a stream that has scans without their final ack, and has had no ack at all for
-  // this long, is taken for broken: it is cancelled and retried like one that broke. A replica
-  // killed behind a proxy can leave the client's stream open with nothing coming back (seen with
-  // HAProxy in tests/e2e/scale_e2e.py). 0: wait as long as the stream stays open.
+  // With retries: a stream that is still being opened, or has scans without their final ack, and
+  // has had no ack at all for this long, is taken for broken: it is cancelled and retried like one
+  // that broke. A replica killed behind a proxy can leave the client's stream open with nothing
+  // coming back (seen with HAProxy in tests/e2e/scale_e2e.py). 0: wait as long as the stream stays
+  // open.
   std::chrono::milliseconds stall_timeout{30000};
+  // Called before each retry with its number (1, 2, ...) and why the stream before it ended.
+  std::function<void(int retry, const absl::Status& why)> on_retry;
 };
 
 // Fills *scan with the next scan to send and returns true, or returns false at the end. The

@@ -68,13 +68,15 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
     // (docs/service.md, "Sharing the cores"); an upload or a replay does not, and trains every
     // frame fully, held back by its queue (docs/service.md, "Replays keep the offline map").
     if (options.real_time.value_or(options.rate_hz > 0)) context.AddMetadata(kRealTimeHeader, "1");
-    auto stream = c.stub().StreamScans(&context);
+    bool opening = true;  // until StreamScans returns: opening the call blocks
     {
       std::lock_guard<std::mutex> lock(mu);
       last_progress = std::chrono::steady_clock::now();
     }
-    // Cancels a stream that went silent with scans unacknowledged (StreamOptions::stall_timeout);
-    // Finish then says CANCELLED, and the stream is retried.
+    // Cancels a stream that went silent while being opened or with scans unacknowledged
+    // (StreamOptions::stall_timeout); Finish then says CANCELLED, and the stream is retried. It
+    // watches from before the call starts: a context cancelled before its call starts cancels the
+    // call as it starts.
     std::mutex watch_mu;
     std::condition_variable watch_cv;
     bool stream_over = false, stalled = false;
@@ -84,7 +86,7 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
       while (
           !watch_cv.wait_for(watch, std::chrono::milliseconds(100), [&] { return stream_over; })) {
         std::lock_guard<std::mutex> lock(mu);
-        if (!unfinished.empty() &&
+        if ((opening || !unfinished.empty()) &&
             std::chrono::steady_clock::now() - last_progress > options.stall_timeout) {
           stalled = true;
           context.TryCancel();
@@ -92,6 +94,11 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
         }
       }
     });
+    auto stream = c.stub().StreamScans(&context);
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      opening = false;
+    }
     std::thread reader([&] {
       rim::v1::ScanAck ack;
       while (stream->Read(&ack)) {
@@ -207,6 +214,14 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
       return summary;
     }
     ++summary.retries;
+    if (options.on_retry) {
+      const absl::Status why =
+          stalled ? absl::DeadlineExceededError(
+                        absl::StrCat("no ack for ", options.stall_timeout.count() / 1000.0, " s"))
+          : !status.ok() ? c.Error(status, "StreamScans")
+                         : absl::UnavailableError("the stream ended with scans unacknowledged");
+      options.on_retry(summary.retries, why);
+    }
     std::this_thread::sleep_for(options.retry_backoff);
   }
 }
