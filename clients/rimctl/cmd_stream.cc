@@ -3,6 +3,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <iostream>
 
 #include "absl/strings/str_cat.h"
@@ -125,6 +127,14 @@ int RunStream(const std::vector<std::string>& words, const Io& io) {
   options.max_retries = int(*retries);
   options.on_ack = [&](const rim::v1::ScanAck& ack) { progress.OnAck(ack); };
   options.on_sent = [&](uint64_t sent) { progress.OnSent(sent); };
+  options.on_stuck = [&] {
+    progress.Note(absl::StrCat(
+        "stream: the cancelled stream to ", client->address(),
+        " has not ended; giving up (gRPC leaves such a call blocked when a proxy answers it with ",
+        "a response that is not gRPC, e.g. an HTML error page: docs/clients.md)"));
+    std::fflush(stdout);
+    std::_Exit(kExitUnreachable);
+  };
   options.on_retry = [&](int retry, const absl::Status& why) {
     progress.Note(absl::StrCat("stream: broken (", why.ToString(), "); opening it again (retry ",
                                retry, " of ", options.max_retries, ")"));

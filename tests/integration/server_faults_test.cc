@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
+#include <atomic>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -105,6 +106,9 @@ TEST(ServerFaultsTest, SilentServerStreamIsCancelledAndRetried) {
     EXPECT_EQ(retry, int(reasons.size()) + 1);
     reasons.push_back(why.ToString());
   };
+  // A cancelled stream ends: the watchdog never reports one stuck here.
+  std::atomic<bool> stuck{false};
+  options.on_stuck = [&] { stuck = true; };
   size_t next = 0;
   const pid_t pid = (*server)->pid();
   std::thread thaw;
@@ -137,6 +141,7 @@ TEST(ServerFaultsTest, SilentServerStreamIsCancelledAndRetried) {
   EXPECT_GE(summary->retries, 2);  // at least two silent streams were given up
   ASSERT_FALSE(reasons.empty());
   EXPECT_THAT(reasons[0], HasSubstr("no ack for 1.5 s"));
+  EXPECT_FALSE(stuck);
   EXPECT_EQ(WaitSettled(*client, "frozen").integrated_frames(), scans.size());
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }

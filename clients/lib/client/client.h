@@ -112,6 +112,12 @@ struct StreamOptions {
   std::chrono::milliseconds stall_timeout{30000};
   // Called before each retry with its number (1, 2, ...) and why the stream before it ended.
   std::function<void(int retry, const absl::Status& why)> on_retry;
+  // Called (on a watchdog thread) when a stream cancelled for its stall has still not ended one
+  // stall_timeout later. gRPC 1.51 can leave a call blocked for good, cancelled or not, when a
+  // proxy answers it with a response of another protocol (an HTML error page; docs/clients.md),
+  // and Stream cannot return while the call blocks it: a program that must not hang exits here
+  // (rimctl does, with exit code 3). Unset: Stream waits.
+  std::function<void()> on_stuck;
 };
 
 // Fills *scan with the next scan to send and returns true, or returns false at the end. The

@@ -90,8 +90,16 @@ absl::StatusOr<StreamSummary> SessionHandle::Stream(const ScanSource& next,
             std::chrono::steady_clock::now() - last_progress > options.stall_timeout) {
           stalled = true;
           context.TryCancel();
-          return;
+          break;
         }
+      }
+      // A cancelled call ends at once. gRPC 1.51 can leave a call that got a response of another
+      // protocol (an HTML error page from a proxy) blocked for good, cancelled or not, and a
+      // blocked call cannot be left behind: on_stuck says so.
+      if (stalled &&
+          !watch_cv.wait_for(watch, options.stall_timeout, [&] { return stream_over; }) &&
+          options.on_stuck) {
+        options.on_stuck();
       }
     });
     auto stream = c.stub().StreamScans(&context);
