@@ -49,6 +49,18 @@ class GridEncoder {
     for (int l = 0; l < L_; ++l) {
       Level& lv = levels_[l];
       lv.scale = spec.r << l;
+      // A coarse grid whose spacing is a multiple of the level's voxel puts every point on a
+      // lattice point: its encoding is that row (weight 1, the other corners 0), read straight
+      // from the map. Each such row serves one point, so the block's row cache would only copy.
+      lv.aligned = mult % lv.scale == 0;
+      if (lv.aligned) {
+        for (int a = 0; a < 3; ++a) {
+          lv.lattice[a].resize(size_t(n));
+          for (int t = 0; t < n; ++t)
+            lv.lattice[a][size_t(t)] = (point0[a] + t) * (mult / lv.scale);
+        }
+        continue;
+      }
       lv.lo = FloorDiv(Int3(point0 * mult), Int3::Constant(lv.scale));
       const Int3 hi =
           FloorDiv(Int3((point0 + Int3::Constant(n - 1)) * mult), Int3::Constant(lv.scale)) +
@@ -110,8 +122,10 @@ class GridEncoder {
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
     float* rows = nullptr;  // count·D floats of BlockScratch::rows[level]
     std::vector<uint8_t> have;
-    std::vector<Axis> axis[3];  // per axis and block-local coordinate
-    size_t corner_offset[8];    // row-index offset of corner (cx, cy, cz) = c from the cell
+    std::vector<Axis> axis[3];    // per axis and block-local coordinate
+    size_t corner_offset[8];      // row-index offset of corner (cx, cy, cz) = c from the cell
+    bool aligned = false;         // every grid point on a lattice point: no row cache
+    std::vector<int> lattice[3];  // aligned: per axis and block-local coordinate, the lattice index
   };
 
 #ifdef RIM_MESH_AVX2
@@ -123,6 +137,12 @@ class GridEncoder {
     for (const Int3& m : points) {
       for (int l = 0; l < L_; ++l, out += 8) {
         Level& lv = levels_[l];
+        if (lv.aligned) {
+          // 0 + 1·row, as the corner sum below makes it (−0 becomes +0).
+          _mm256_storeu_ps(
+              out, _mm256_add_ps(_mm256_setzero_ps(), _mm256_loadu_ps(LatticeRow(l, lv, m))));
+          continue;
+        }
         const Axis& ax = lv.axis[0][size_t(m.x())];
         const Axis& ay = lv.axis[1][size_t(m.y())];
         const Axis& az = lv.axis[2][size_t(m.z())];
@@ -157,6 +177,11 @@ class GridEncoder {
     for (const Int3& m : points) {
       for (int l = 0; l < L_; ++l, out += D) {
         Level& lv = levels_[l];
+        if (lv.aligned) {
+          const float* row = LatticeRow(l, lv, m);
+          for (int d = 0; d < D; ++d) out[d] = 0.f + row[d];
+          continue;
+        }
         const Axis& ax = lv.axis[0][size_t(m.x())];
         const Axis& ay = lv.axis[1][size_t(m.y())];
         const Axis& az = lv.axis[2][size_t(m.z())];
@@ -173,6 +198,12 @@ class GridEncoder {
         for (int d = 0; d < D; ++d) out[d] = o[d];
       }
     }
+  }
+
+  // An aligned level's row at grid point m (valid until the reader's next Get).
+  const float* LatticeRow(int l, const Level& lv, const Int3& m) {
+    return reader_.Get(l, Int3(lv.lattice[0][size_t(m.x())], lv.lattice[1][size_t(m.y())],
+                               lv.lattice[2][size_t(m.z())]));
   }
 
   const float* Row(Level& lv, size_t i) {
