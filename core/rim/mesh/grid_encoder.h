@@ -38,8 +38,9 @@ struct BlockScratch {
 // The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
 // lies at m·s / (r·2^l) in level-l voxels, so its cell and weights are exact: the integer quotient
 // and the remainder over a power of two times r. Each lattice row is fetched once per block (on
-// first use) instead of once per point and corner. The result is a function of the point alone,
-// so blocks and tiles that share a point compute the same bits for it.
+// first use) instead of once per point and corner; a level on which every grid point is a lattice
+// point (a coarse grid) reads its rows straight from the map. The result is a function of the
+// point alone, so blocks and tiles that share a point compute the same bits for it.
 class GridEncoder {
  public:
   GridEncoder(const MapGeometry& geo, GridSpec spec, const Int3& point0, int n,
