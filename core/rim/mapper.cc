@@ -315,6 +315,7 @@ MapperStats Mapper::Stats() const {
       s.transient_buffer_removed = tr.buffer_removed;
       s.transient_deferred_removed = tr.deferred_removed;
       s.transient_departed_removed = tr.departed_removed;
+      s.transient_past_removed = tr.past_removed;
     }
   }
   s.deferred_points = deferred.points;

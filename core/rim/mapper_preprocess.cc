@@ -104,6 +104,13 @@ void Mapper::Preprocess(const PosedScan& scan, bool box_moved) {
              buffer_->RemoveOutside(lo, hi);
              deferred_->Add(outside.points_W, outside.origins_W, sensor_W);
            });
+  // Moving things, on earlier evidence: the newly buffered returns where an earlier scan's rays
+  // passed clearly have moved in since, and go before they train.
+  if (transient_ && !per_point_origins) {
+    const double t0 = mapper_internal::Now();
+    transient_->JudgeNewest(frames_, buffer_.get(), local_map_.get(), &aux_mu_, &trainer_->pool());
+    preprocess_transient_s_ += mapper_internal::Now() - t0;
+  }
   // Outlier removal needs a decoder that already means something: not before it is frozen.
   if (config_.buffer.outlier_removal && frames_ >= config_.decoder.freeze_after_frames &&
       frames_ % config_.buffer.outlier_period_frames == 0) {

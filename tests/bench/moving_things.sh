@@ -10,7 +10,8 @@
 #   defaults: PRESET maicity; seeds 301 302 303. Seed 302 sets facades back 4-10 m, seed 303 drives
 #   0.7 m a frame: no seed here was looked at while the filter was tuned (that was seed 72).
 # Environment: FRAMES (default 100), CROSSERS (6), MOVERS (3), NOISE (0.03); KINDS ("moving
-# static") and FILTERS ("true false") choose the runs; ROWS_FILE names where rows are appended.
+# static") and FILTERS ("true false") choose the runs; ROWS_FILE names where rows are appended;
+# RIM_MAP_ARGS adds rim_map arguments (e.g. "--set transient.past_frames=0").
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 OUT="$2"
@@ -19,6 +20,7 @@ shift $(( $# >= 3 ? 3 : $# ))
 SEEDS=("$@")
 [ ${#SEEDS[@]} -gt 0 ] || SEEDS=(301 302 303)
 FRAMES="${FRAMES:-100}"
+read -r -a MAP_ARGS <<< "${RIM_MAP_ARGS:-}"
 mkdir -p "$OUT"
 ROWS="${ROWS_FILE:-$OUT/rows.jsonl}"
 [ -n "${ROWS_FILE:-}" ] || : > "$ROWS"
@@ -42,7 +44,7 @@ for seed in "${SEEDS[@]}"; do
     for filter in ${FILTERS:-true false}; do
       run="$OUT/map_${seed}_${kind}_${PRESET}_$filter"
       "$BUILD/clients/rim_map" "$city" --preset "$PRESET" --out "$run" \
-        --set transient.enabled=$filter > "$run.log" 2>&1
+        --set transient.enabled=$filter ${MAP_ARGS[@]+"${MAP_ARGS[@]}"} > "$run.log" 2>&1
       "$BUILD/clients/rim_eval" "$run/mesh.ply" "$city/gt.ply" --box 10,10,-3,3 --seq "$city" \
         --json > "$run/eval_mesh.json"
       "$BUILD/clients/rim_eval" "$run/mesh.ply" "$city/gt_observed.ply" --box 10,10,-3,3 \
@@ -68,7 +70,8 @@ print(json.dumps({
     "transient_ms": timing["stages_ms_per_frame"].get("transient"),
     "removed": [timing.get("transient_buffer_removed", 0),
                 timing.get("transient_deferred_removed", 0),
-                timing.get("transient_departed_removed", 0)]}))
+                timing.get("transient_departed_removed", 0),
+                timing.get("transient_past_removed", 0)]}))
 PY
       tail -n 1 "$ROWS" | python3 -c '
 import json, sys

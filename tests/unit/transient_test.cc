@@ -171,6 +171,75 @@ TEST(TransientTest, DroppedPointsJoinTheClearedSetAndExpire) {
   EXPECT_EQ(filter.cleared().size(), 0u);
 }
 
+// Earlier evidence (JudgeNewest): the filter judges each frame's newly buffered returns against
+// the scans past_frames, 2 · past_frames, ... before. `scans` are applied as frames 0, 1, ...; the
+// buffer takes the last one's returns; returns how many of those matching `in` were dropped, and
+// how many matched.
+template <typename Pred>
+std::pair<int, int> DroppedOnArrival(const std::vector<Scan>& scans, Pred in,
+                                     TransientConfig config) {
+  config.period_frames = 1;
+  TransientFilter filter(config);
+  std::mutex mu;
+  PointBuffer buffer = BufferOf(scans.back());
+  PointBuffer empty = BufferOf(Scan());
+  for (size_t f = 0; f < scans.size(); ++f) {
+    const bool last = f + 1 == scans.size();
+    filter.Apply(scans[f].points_S, scans[f].T, 0.3f, 60.f, int64_t(f), last ? &buffer : &empty,
+                 nullptr, nullptr, &mu, nullptr);
+  }
+  int before = 0, after = 0;
+  for (const Vec3f& p : buffer.points()) before += in(p);
+  filter.JudgeNewest(int64_t(scans.size() - 1), &buffer, nullptr, &mu, nullptr);
+  for (const Vec3f& p : buffer.points()) after += in(p);
+  EXPECT_GE(filter.Stats().past_removed, int64_t(before - after));
+  return {before - after, before};
+}
+
+// A person steps into the robot's path where its scans a few frames before saw the road and the
+// building beyond: their returns are dropped as they arrive, before they train. The road, the
+// building and a wall that the earlier scans saw only in part (from farther away) keep every
+// return. A person who has stood there since the earlier scan is kept.
+TEST(TransientTest, APersonWhoStepsWhereEarlierScansSawFreeIsDroppedOnArrival) {
+  AnalyticScene scene = Ground();
+  scene.boxes.push_back({Eigen::Vector3f(30.f, -12.f, -0.05f), Eigen::Vector3f(31.f, 12.f, 9.f)});
+  scene.boxes.push_back({Eigen::Vector3f(14.f, 5.f, -0.05f), Eigen::Vector3f(20.f, 6.f, 3.f)});
+  AnalyticScene with_person = scene;
+  with_person.boxes.push_back(
+      {Eigen::Vector3f(12.f, -0.3f, -0.05f), Eigen::Vector3f(12.5f, 0.3f, 1.8f)});
+  auto on_person = [](const Vec3f& p) {
+    return p.x() > 11.9f && p.x() < 12.6f && std::abs(p.y()) < 0.4f && p.z() > 0.15f;
+  };
+  auto static_ = [](const Vec3f& p) {
+    return !(p.x() > 11.9f && p.x() < 12.6f && std::abs(p.y()) < 0.4f && p.z() > 0.05f);
+  };
+  TransientConfig config;
+  config.past_frames = 2;
+  config.past_scans = 2;
+  // Frames 0-4, 1 m apart; the person is there only in the last.
+  std::vector<Scan> scans;
+  for (int f = 0; f < 5; ++f)
+    scans.push_back(
+        Take(f == 4 ? with_person : scene, PoseAt(float(f), 0.1f * f), 10 + f, CarLidar(0.03f)));
+  const auto [person_dropped, person] = DroppedOnArrival(scans, on_person, config);
+  ASSERT_GT(person, 300);
+  EXPECT_GE(person_dropped, int(0.9 * person)) << person_dropped << " of " << person;
+  const auto [static_dropped, statics] = DroppedOnArrival(scans, static_, config);
+  ASSERT_GT(statics, 50000);
+  EXPECT_EQ(static_dropped, 0) << "of " << statics;
+  // There since frame 2, the scan past_frames before the last: it saw them, and they stay.
+  std::vector<Scan> standing = scans;
+  for (int f = 2; f < 5; ++f)
+    standing[size_t(f)] = Take(with_person, PoseAt(float(f), 0.1f * f), 10 + f, CarLidar(0.03f));
+  config.past_scans = 1;  // frame 0, which did not see them, is not asked
+  const auto [stood_dropped, stood] = DroppedOnArrival(standing, on_person, config);
+  ASSERT_GT(stood, 300);
+  EXPECT_EQ(stood_dropped, 0) << "of " << stood;
+  // Off: nothing is judged.
+  config.past_frames = 0;
+  EXPECT_EQ(DroppedOnArrival(scans, on_person, config).first, 0);
+}
+
 TEST(TransientTest, AThinPoleHitByAFewBeamsAndGrazedByManyIsKept) {
   AnalyticScene scene = Ground();
   // A 5 cm-radius pole: about three columns of every ring hit it from 8 m, and the columns
@@ -296,7 +365,8 @@ TEST(TransientTest, BadConfigValuesNameTheField) {
         "transient.clear_samples_per_iteration=-3", "transient.max_cleared_points=-1",
         "transient.fit_rms_m=0", "transient.fit_rms_per_m=NaN",
         "transient.fit_normal_margin_m=-0.1", "transient.near_m=2", "transient.near_bins=-1",
-        "transient.surface_fit=maybe", "transient.empty_is_free=2"}) {
+        "transient.surface_fit=maybe", "transient.empty_is_free=2", "transient.past_frames=-1",
+        "transient.past_frames=101", "transient.past_scans=5"}) {
     auto config = MakePreset("maicity");
     ASSERT_TRUE(config.ok());
     const absl::Status s = ApplyOverrides({kv}, &*config);

@@ -89,6 +89,8 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.max_cleared_points", c.transient.max_cleared_points);
   v("transient.departed_frames", c.transient.departed_frames);
   v("transient.max_departed_points", c.transient.max_departed_points);
+  v("transient.past_frames", c.transient.past_frames);
+  v("transient.past_scans", c.transient.past_scans);
   v("submap.block_size", c.submap.block_size);
   v("submap.active_radius_submaps", c.submap.active_radius_submaps);
   v("submap.host_budget_bytes", c.submap.host_budget_bytes);
@@ -284,6 +286,11 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.departed_frames", "must be in [0, 100000]");
   if (tr.max_departed_points < 0 || tr.max_departed_points > 100000000)
     return Bad("transient.max_departed_points", "must be in [0, 1e8]");
+  // The earlier scans' range images are kept (about 0.25 MB each): past_frames · past_scans.
+  if (tr.past_frames < 0 || tr.past_frames > 100)
+    return Bad("transient.past_frames", "must be in [0, 100]");
+  if (tr.past_scans < 0 || tr.past_scans > 4)
+    return Bad("transient.past_scans", "must be in [0, 4]");
 
   if (!(query.max_distance_m > 0.f && query.max_distance_m <= 100.f))
     return Bad("query.max_distance_m", "must be in (0, 100] m");

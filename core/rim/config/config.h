@@ -165,6 +165,15 @@ struct TransientConfig {
   // through only after the box has moved on. Their voxels in the global map then read seen free.
   int departed_frames = 30;
   int max_departed_points = 200000;
+  // Earlier evidence: each frame's newly buffered points are judged by the same rule against the
+  // scans past_frames, 2 · past_frames, ... past_scans · past_frames frames before. A return where
+  // an earlier scan's rays passed clearly is something that has moved in since (a person who
+  // walked into space the robot saw free); it is dropped before it trains. Several lags: the
+  // scan just before may have been too near the place (within min_range_m) or blocked. The scans
+  // are asked nearest first, and one with a return at the point settles it (kept): something that
+  // stops is mapped past_frames frames later (0.5 s at 10 Hz). 0 of either: off.
+  int past_frames = 5;
+  int past_scans = 4;
 };
 
 // Global map of sub-maps (§3.3).

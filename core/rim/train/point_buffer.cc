@@ -71,9 +71,11 @@ void PointBuffer::RemoveOutside(const Vec3d& min_m, const Vec3d& max_m) {
 }
 
 void PointBuffer::Filter(const std::vector<bool>& keep) {
+  // Points before the first dropped one stay where they are.
   size_t out = 0;
+  while (out < points_.size() && keep[out]) ++out;
   const size_t newest_from = points_.size() - newest_;
-  for (size_t i = 0; i < points_.size(); ++i) {
+  for (size_t i = out; i < points_.size(); ++i) {
     if (!keep[i]) {
       if (i >= newest_from) --newest_;
       continue;

@@ -81,10 +81,13 @@ void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
 }
 
 void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
-                      WorkerPool* pool, float fired_row_share) {
+                      WorkerPool* pool, float fired_row_share, Scratch* external) {
   const size_t n = points_S.size();
-  scratch_.resize(n);
-  scratch_offset_.resize(n);
+  Scratch& own = external ? *external : scratch_;
+  std::vector<uint32_t>& scratch = own.bins;
+  std::vector<uint16_t>& scratch_offset = own.offsets;
+  scratch.resize(n);
+  scratch_offset.resize(n);
   // The bins (two arctangents a point, most of the cost) in pieces over the pool.
   constexpr int kPieces = 4;
   int piece_lo[kPieces], piece_hi[kPieces];
@@ -92,14 +95,14 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
     int lo = ne_, hi = -1;
     for (size_t i = n * size_t(k) / kPieces; i < n * size_t(k + 1) / kPieces; ++i) {
       const float r = points_S[i].norm();
-      scratch_[i] = ~0u;
+      scratch[i] = ~0u;
       if (!(r > 0.f && r <= max_range_m)) continue;
       float fa, fe;
       PlaceOf(points_S[i], &fa, &fe);
       const int a = std::min(int(fa), na_ - 1), e = std::min(int(fe), ne_ - 1);
-      scratch_[i] = uint32_t(e) << 16 | uint32_t(a);
-      scratch_offset_[i] = uint16_t(std::min(int((fe - float(e)) * 256.f), 255) << 8 |
-                                    std::min(int((fa - float(a)) * 256.f), 255));
+      scratch[i] = uint32_t(e) << 16 | uint32_t(a);
+      scratch_offset[i] = uint16_t(std::min(int((fe - float(e)) * 256.f), 255) << 8 |
+                                   std::min(int((fa - float(a)) * 256.f), 255));
       lo = std::min(lo, e);
       hi = std::max(hi, e);
     }
@@ -118,14 +121,14 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   range_cm_.assign(size_t(rows_) * na_, kEmpty);
   offset_.assign(size_t(rows_) * na_, 0);
   for (size_t i = 0; i < points_S.size(); ++i) {
-    if (scratch_[i] == ~0u) continue;
-    const int e = int(scratch_[i] >> 16), a = int(scratch_[i] & 0xffff);
+    if (scratch[i] == ~0u) continue;
+    const int e = int(scratch[i] >> 16), a = int(scratch[i] & 0xffff);
     const float r = points_S[i].norm();
     const uint16_t cm = r < min_range_m ? 0 : uint16_t(std::min(100.f * r, float(kEmpty - 1)));
     const size_t slot = size_t(e - first_row_) * na_ + a;
     if (cm < range_cm_[slot]) {
       range_cm_[slot] = cm;
-      offset_[slot] = scratch_offset_[i];
+      offset_[slot] = scratch_offset[i];
     }
   }
   // Rows the sensor fired along: a spinning sensor's rings fill most of their row (a city scan's
@@ -140,9 +143,9 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   }
 }
 
-bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
+Verdict Judge(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
   const float r = p_S.norm();
-  if (!(r >= c.min_range_m && r <= c.max_range_m)) return false;
+  if (!(r >= c.min_range_m && r <= c.max_range_m)) return Verdict::kKept;
   const float beyond = r + c.margin_m + c.margin_per_m * r;
   float fa, fe;
   image.PlaceOf(p_S, &fa, &fe);
@@ -175,7 +178,7 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       if (!(v > 0.f && v < front)) break;
       ++in_front;
     }
-    if (in_front == 3) return false;
+    if (in_front == 3) return Verdict::kKept;
   }
   // Least squares of 1/range = t0 + t1·x + t2·y over the window's returns, x and y their angular
   // offsets from p in bins (azimuth scaled by cos(elevation)): sums in double.
@@ -192,7 +195,7 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       if (a < 0) a += na;
       if (a >= na) a -= na;
       float v = image.AtWrapped(a, e);
-      if (v <= 0.f) return false;  // blocked near the sensor
+      if (v <= 0.f) return Verdict::kKept;  // blocked near the sensor
       if (v == kInf) {
         // Nothing came back: evidence only along a row the sensor fired, and only for `all_beyond`.
         if (!c.empty_is_free || !image.Fired(e)) continue;
@@ -209,7 +212,7 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       const float x = (float(a0 + da) + oa - fa) * cos_el, y = (float(e) + oe - fe);
       // Something still there: a return within `near` of p.
       const float dr = v - r;
-      if (bin_m2 * (x * x + y * y) + dr * dr < near2) return false;
+      if (bin_m2 * (x * x + y * y) + dr * dr < near2) return Verdict::kSomethingThere;
       all_beyond &= v >= beyond;
       left |= x < 0.f;
       right |= x > 0.f;
@@ -228,10 +231,10 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
       szz += z * z;
     }
   }
-  if (!(left && right && below && above)) return false;
+  if (!(left && right && below && above)) return Verdict::kKept;
   // Every return in the window ends clearly beyond p: seen through.
-  if (all_beyond) return true;
-  if (!c.surface_fit || s1 < 8) return false;
+  if (all_beyond) return Verdict::kSeenThrough;
+  if (!c.surface_fit || s1 < 8) return Verdict::kKept;
   // Some end before: p is seen through only if the scan's surface around its direction is one
   // plane (no depth edge in the window) that passes p by the margin. The normal equations, by
   // Cramer's rule.
@@ -239,26 +242,31 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f&
   const double c00 = m11 * m22 - m12 * m12, c01 = m02 * m12 - m01 * m22,
                c02 = m01 * m12 - m02 * m11;
   const double det = m00 * c00 + m01 * c01 + m02 * c02;
-  if (!(std::abs(det) > 1e-9 * s1 * s1 * s1)) return false;
+  if (!(std::abs(det) > 1e-9 * s1 * s1 * s1)) return Verdict::kKept;
   const double c11 = m00 * m22 - m02 * m02, c12 = m01 * m02 - m00 * m12,
                c22 = m00 * m11 - m01 * m01;
   const double t0 = (c00 * sz + c01 * sxz + c02 * syz) / det;
   const double t1 = (c01 * sz + c11 * sxz + c12 * syz) / det;
   const double t2 = (c02 * sz + c12 * sxz + c22 * syz) / det;
-  if (!(t0 > 0.0)) return false;
+  if (!(t0 > 0.0)) return Verdict::kKept;
   const double fitted_range = 1.0 / t0;
-  if (fitted_range < beyond) return false;
+  if (fitted_range < beyond) return Verdict::kKept;
   // ... and by fit_normal_margin_m along the plane's normal: at a grazing angle a point a few
   // centimetres off the surface (range noise, a pose a little off) lies metres in front of it along
   // the ray. The plane's slope in range per radian, over the range, is the tangent of the angle
   // between the ray and the normal.
   const double slope = std::sqrt(t1 * t1 + t2 * t2) / t0 / double(image.bin_rad());
-  if ((fitted_range - r) / std::sqrt(1.0 + slope * slope) < c.fit_normal_margin_m) return false;
+  if ((fitted_range - r) / std::sqrt(1.0 + slope * slope) < c.fit_normal_margin_m)
+    return Verdict::kKept;
   // The fit's residual, in range: δ(1/v) ≈ δv / v², at about the fitted range.
   const double rss = std::max(0.0, szz - (t0 * sz + t1 * sxz + t2 * syz));
   const double rms_range = std::sqrt(rss / s1) * fitted_range * fitted_range;
   const double allowed = c.fit_rms_m + c.fit_rms_per_m * fitted_range;
-  return rms_range <= allowed;
+  return rms_range <= allowed ? Verdict::kSeenThrough : Verdict::kKept;
+}
+
+bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
+  return Judge(image, c, p_S) == Verdict::kSeenThrough;
 }
 
 void ClearedPoints::Add(const Vec3f& p_W, const Vec3f& dir_W, int64_t frame) {
@@ -307,14 +315,29 @@ void ClearedPoints::Clear() {
 }
 
 TransientFilter::TransientFilter(const TransientConfig& config)
-    : config_(config), image_(config.bin_deg) {}
+    : config_(config), image_(config.bin_deg) {
+  const int ring = config.past_frames * config.past_scans;
+  past_.reserve(size_t(std::max(ring, 0)));
+  for (int i = 0; i < ring; ++i) past_.push_back({RangeImage(config.bin_deg)});
+}
 
 void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
                             const Eigen::Isometry3f& T_world_sensor, float scan_min_range_m,
                             float scan_max_range_m, int64_t frame, PointBuffer* buffer,
                             DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu,
                             WorkerPool* pool) {
-  image_.Fill(points_S, scan_min_range_m, scan_max_range_m, pool, config_.fired_row_share);
+  // The last frame's image goes to the ring of earlier scans (its slot's oldest image is refilled
+  // as this frame's).
+  if (!past_.empty() && image_frame_ >= 0) {
+    PastScan& slot = past_[size_t(image_frame_ % int64_t(past_.size()))];
+    std::swap(slot.image, image_);
+    slot.T_world_sensor = image_T_;
+    slot.frame = image_frame_;
+  }
+  image_.Fill(points_S, scan_min_range_m, scan_max_range_m, pool, config_.fired_row_share,
+              &fill_scratch_);
+  image_T_ = T_world_sensor;
+  image_frame_ = frame;
   const Eigen::Matrix3f R_SW = T_world_sensor.linear().transpose();
   const Vec3f sensor_W = T_world_sensor.translation();
   const int period = config_.period_frames;
@@ -334,17 +357,43 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     const size_t i = size_t(phase) + k * size_t(period);
     drop_[i] = seen_through(points[i]);
   });
-  std::vector<bool> keep(n, true);
+  const bool unmark = map != nullptr && map->placed();
+  const int64_t departed_seen = unmark && config_.departed_frames > 0
+                                    ? JudgeDeparted(points, frame, *map, seen_through, pool)
+                                    : 0;
+  const int64_t dropped = DropFromBuffer(frame, 0, buffer, map, aux_mu, /*clear=*/true);
+  std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
+  stats_.judged += int64_t(turn);
+  stats_.departed_removed += departed_seen;
+  stats_.buffer_removed += dropped;
+  if (deferred) {
+    stats_.deferred_removed += deferred->RemoveIf(
+        sensor_W, config_.max_range_m, 2 * period, int(frame % (2 * period)),
+        [&](const std::vector<Vec3f>& endpoints, std::vector<uint8_t>* drop) {
+          JudgeInPieces(endpoints.size(), pool,
+                        [&](size_t i) { (*drop)[i] = seen_through(endpoints[i]); });
+        });
+  }
+}
+
+int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer,
+                                        LocalMap* map, std::mutex* aux_mu, bool clear) {
+  const std::vector<Vec3f>& points = buffer->points();
+  const size_t n = points.size();
+  std::vector<bool> keep;
   int64_t dropped = 0;
   const bool unmark = map != nullptr && map->placed();
   const double inv_leaf = unmark ? 1.0 / map->geometry().leaf_m() : 0.0;
-  for (size_t i = 0; i < n; ++i) {
+  for (size_t i = from; i < n; ++i) {
     if (!drop_[i]) continue;
+    if (keep.empty()) keep.assign(n, true);
     keep[i] = false;
     ++dropped;
-    const Vec3f d = points[i] - buffer->origins()[i];
-    const float len = d.norm();
-    cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
+    if (clear) {
+      const Vec3f d = points[i] - buffer->origins()[i];
+      const float len = d.norm();
+      cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
+    }
     if (!unmark) continue;
     const Int3 g(int(std::floor(points[i].x() * inv_leaf)),
                  int(std::floor(points[i].y() * inv_leaf)),
@@ -364,22 +413,51 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
       __atomic_fetch_or(f, uint8_t(LocalMap::kSeenFree), __ATOMIC_RELAXED);
     }
   }
-  const int64_t departed_seen = unmark && config_.departed_frames > 0
-                                    ? JudgeDeparted(points, frame, *map, seen_through, pool)
-                                    : 0;
-  std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
-  stats_.judged += int64_t(turn);
-  stats_.departed_removed += departed_seen;
-  if (dropped > 0) buffer->Filter(keep);
-  stats_.buffer_removed += dropped;
-  if (deferred) {
-    stats_.deferred_removed += deferred->RemoveIf(
-        sensor_W, config_.max_range_m, 2 * period, int(frame % (2 * period)),
-        [&](const std::vector<Vec3f>& endpoints, std::vector<uint8_t>* drop) {
-          JudgeInPieces(endpoints.size(), pool,
-                        [&](size_t i) { (*drop)[i] = seen_through(endpoints[i]); });
-        });
+  if (dropped > 0) {
+    std::lock_guard<std::mutex> lock(*aux_mu);
+    buffer->Filter(keep);
   }
+  return dropped;
+}
+
+int64_t TransientFilter::JudgeNewest(int64_t frame, PointBuffer* buffer, LocalMap* map,
+                                     std::mutex* aux_mu, WorkerPool* pool) {
+  if (past_.empty()) return 0;
+  const std::vector<Vec3f>& points = buffer->points();
+  const size_t n = points.size(), first = n - buffer->newest();
+  // Per newest point: 0 undecided, 1 seen through (dropped), 2 something was there in a nearer
+  // earlier scan: it stood there then too (a static surface, or something that stopped), and the
+  // older scans are not asked. Most points are settled by the first scan that sees them. Only
+  // drop_[first, n) is read.
+  drop_.resize(n);
+  std::fill(drop_.begin() + std::ptrdiff_t(first), drop_.end(), uint8_t(0));
+  std::vector<uint8_t>& state = drop_;
+  int64_t judged = 0;
+  for (int j = 1; j <= config_.past_scans; ++j) {
+    const int64_t past_frame = frame - int64_t(j) * config_.past_frames;
+    if (past_frame < 0) break;
+    const PastScan& past = past_[size_t(past_frame % int64_t(past_.size()))];
+    if (past.frame != past_frame) continue;  // not a scan judged by Apply (or not kept)
+    const Eigen::Matrix3f R_SW = past.T_world_sensor.linear().transpose();
+    const Vec3f sensor_W = past.T_world_sensor.translation();
+    judged += std::count(state.begin() + std::ptrdiff_t(first), state.end(), uint8_t(0));
+    JudgeInPieces(n - first, pool, [&](size_t k) {
+      uint8_t& d = state[first + k];
+      if (d != 0) return;
+      const Verdict v = Judge(past.image, config_, R_SW * (points[first + k] - sensor_W));
+      d = v == Verdict::kSeenThrough ? 1 : v == Verdict::kSomethingThere ? 2 : 0;
+    });
+  }
+  for (size_t i = first; i < n; ++i) state[i] = state[i] == 1;
+  // They join the cleared points although nothing has learnt them: the feet that stay (within
+  // the plane's normal margin of the road) are trained, and the free samples around the body
+  // keep that bump low (without them, seed 612's planner read 10-15 cm too near there).
+  const int64_t dropped = DropFromBuffer(frame, first, buffer, map, aux_mu, /*clear=*/true);
+  std::lock_guard<std::mutex> lock(*aux_mu);
+  stats_.judged += judged;
+  stats_.buffer_removed += dropped;
+  stats_.past_removed += dropped;
+  return dropped;
 }
 
 std::vector<Int3> TransientFilter::TakeOutsideCells() {

@@ -53,8 +53,14 @@ class RangeImage {
   // on its threads (the same image either way). A bin whose nearest return lies nearer than
   // min_range_m reads 0 (blocked: what lies behind it is unknown).
   // A row holding returns at fired_row_share of its azimuths or more counts as fired (Fired()).
+  // Per point of the scan while filling: its bin, or ~0 when not binned, and its place in it.
+  // Fill uses `external` when given (one for many images), else the image's own.
+  struct Scratch {
+    std::vector<uint32_t> bins;
+    std::vector<uint16_t> offsets;
+  };
   void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
-            WorkerPool* pool = nullptr, float fired_row_share = 0.5f);
+            WorkerPool* pool = nullptr, float fired_row_share = 0.5f, Scratch* external = nullptr);
 
   int azimuth_bins() const { return na_; }
   int elevation_bins() const { return ne_; }
@@ -108,13 +114,16 @@ class RangeImage {
   std::vector<uint16_t> offset_;  // per bin: its return's place in it, 8 bits each way
   std::vector<uint8_t> fired_;    // per row
   float empty_range_m_ = 0.f;
-  std::vector<uint32_t> scratch_;  // per point of the scan: its bin, or ~0 when not binned
-  std::vector<uint16_t> scratch_offset_;
+  Scratch scratch_;  // when Fill is given none
 };
 
 // The rule above for a point p_S (sensor frame) at range r = |p_S| in [min_range_m, max_range_m]
 // (false outside it).
 bool SeenThrough(const RangeImage& image, const TransientConfig& config, const Vec3f& p_S);
+// The same, telling apart why a point is kept when a return of the window lies within the near
+// distance of it (something is there).
+enum class Verdict : uint8_t { kKept, kSomethingThere, kSeenThrough };
+Verdict Judge(const RangeImage& image, const TransientConfig& config, const Vec3f& p_S);
 
 // Where dropped returns stood, for a few frames: free-space samples there clear the network.
 class ClearedPoints {
@@ -141,6 +150,7 @@ struct TransientStats {
   int64_t buffer_removed = 0;    // buffered returns dropped since creation
   int64_t deferred_removed = 0;  // deferred rays dropped since creation
   int64_t judged = 0;            // points judged since creation
+  int64_t past_removed = 0;      // of buffer_removed, those dropped on earlier evidence
   int64_t departed_removed = 0;  // departed points seen through since creation
 };
 
@@ -161,6 +171,14 @@ class TransientFilter {
              float scan_min_range_m, float scan_max_range_m, int64_t frame, PointBuffer* buffer,
              DeferredPoints* deferred, LocalMap* map, std::mutex* aux_mu, WorkerPool* pool);
 
+  // Earlier evidence (TransientConfig::past_frames): judges the newest frame's buffered points
+  // (PointBuffer::newest(), after this frame's Apply and AddFrame) against the scans past_frames,
+  // 2 · past_frames, ... frames before this one, and drops those seen through, unmarking their
+  // voxels and adding them to the cleared points as Apply does. Returns how many were dropped.
+  // The same locking as Apply.
+  int64_t JudgeNewest(int64_t frame, PointBuffer* buffer, LocalMap* map, std::mutex* aux_mu,
+                      WorkerPool* pool);
+
   // Finest voxels (at the corners of the cells holding departed points, or buffered points the box
   // has just left, seen through) that lie outside the box now, collected since the last call: the
   // mapper marks them seen free in the global map (SubmapStore::ClearObserved). Each voxel once:
@@ -175,12 +193,27 @@ class TransientFilter {
   const RangeImage& image() const { return image_; }
 
  private:
+  // Drops buffered points from index `from` on where drop_ is set, unmarking their voxels (see
+  // Apply), and with `clear`, adds them to the cleared points. Returns how many.
+  int64_t DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer, LocalMap* map,
+                         std::mutex* aux_mu, bool clear);
   // Returns how many departed points were seen through.
   int64_t JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame, const LocalMap& map,
                         const std::function<bool(const Vec3f&)>& seen_through, WorkerPool* pool);
 
   TransientConfig config_;
-  RangeImage image_;
+  RangeImage image_;  // this frame's scan
+  Eigen::Isometry3f image_T_ = Eigen::Isometry3f::Identity();
+  int64_t image_frame_ = -1;
+  // Earlier scans' images, for JudgeNewest: a ring of past_frames · past_scans, the scan of
+  // frame f in slot f mod its size.
+  struct PastScan {
+    RangeImage image;
+    Eigen::Isometry3f T_world_sensor = Eigen::Isometry3f::Identity();
+    int64_t frame = -1;
+  };
+  std::vector<PastScan> past_;
+  RangeImage::Scratch fill_scratch_;  // for image_, whichever ring slot's storage it holds
   ClearedPoints cleared_;
   TransientStats stats_;
   std::vector<uint8_t> drop_;
