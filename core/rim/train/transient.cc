@@ -361,7 +361,7 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   const int64_t departed_seen = unmark && config_.departed_frames > 0
                                     ? JudgeDeparted(points, frame, *map, seen_through, pool)
                                     : 0;
-  const int64_t dropped = DropFromBuffer(frame, 0, buffer, map, aux_mu, /*clear=*/true);
+  const int64_t dropped = DropFromBuffer(frame, 0, buffer, map, aux_mu);
   std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
   stats_.judged += int64_t(turn);
   stats_.departed_removed += departed_seen;
@@ -377,7 +377,7 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
 }
 
 int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer,
-                                        LocalMap* map, std::mutex* aux_mu, bool clear) {
+                                        LocalMap* map, std::mutex* aux_mu) {
   const std::vector<Vec3f>& points = buffer->points();
   const size_t n = points.size();
   std::vector<bool> keep;
@@ -389,11 +389,9 @@ int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer*
     if (keep.empty()) keep.assign(n, true);
     keep[i] = false;
     ++dropped;
-    if (clear) {
-      const Vec3f d = points[i] - buffer->origins()[i];
-      const float len = d.norm();
-      cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
-    }
+    const Vec3f d = points[i] - buffer->origins()[i];
+    const float len = d.norm();
+    cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
     if (!unmark) continue;
     const Int3 g(int(std::floor(points[i].x() * inv_leaf)),
                  int(std::floor(points[i].y() * inv_leaf)),
@@ -452,7 +450,7 @@ int64_t TransientFilter::JudgeNewest(int64_t frame, PointBuffer* buffer, LocalMa
   // They join the cleared points although nothing has learnt them: the feet that stay (within
   // the plane's normal margin of the road) are trained, and the free samples around the body
   // keep that bump low (without them, seed 612's planner read 10-15 cm too near there).
-  const int64_t dropped = DropFromBuffer(frame, first, buffer, map, aux_mu, /*clear=*/true);
+  const int64_t dropped = DropFromBuffer(frame, first, buffer, map, aux_mu);
   std::lock_guard<std::mutex> lock(*aux_mu);
   stats_.judged += judged;
   stats_.buffer_removed += dropped;

@@ -47,18 +47,20 @@ namespace rim {
 // The nearest return per bin of direction (azimuth, elevation) of one scan, in the sensor frame.
 class RangeImage {
  public:
+  // Per point of the scan while filling: its bin, or ~0 when not binned, and its place in it.
+  struct Scratch {
+    std::vector<uint32_t> bins;
+    std::vector<uint16_t> offsets;
+  };
+
   explicit RangeImage(float bin_deg);
 
   // Bins the points (sensor frame) whose range lies in [min_range_m, max_range_m]; with a pool,
   // on its threads (the same image either way). A bin whose nearest return lies nearer than
   // min_range_m reads 0 (blocked: what lies behind it is unknown).
   // A row holding returns at fired_row_share of its azimuths or more counts as fired (Fired()).
-  // Per point of the scan while filling: its bin, or ~0 when not binned, and its place in it.
-  // Fill uses `external` when given (one for many images), else the image's own.
-  struct Scratch {
-    std::vector<uint32_t> bins;
-    std::vector<uint16_t> offsets;
-  };
+  // The per-point scratch (Scratch, below) is `external` when given (one for many images), else
+  // the image's own.
   void Fill(const std::vector<Vec3f>& points_S, float min_range_m, float max_range_m,
             WorkerPool* pool = nullptr, float fired_row_share = 0.5f, Scratch* external = nullptr);
 
@@ -194,9 +196,9 @@ class TransientFilter {
 
  private:
   // Drops buffered points from index `from` on where drop_ is set, unmarking their voxels (see
-  // Apply), and with `clear`, adds them to the cleared points. Returns how many.
+  // Apply) and adding them to the cleared points. Returns how many.
   int64_t DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer, LocalMap* map,
-                         std::mutex* aux_mu, bool clear);
+                         std::mutex* aux_mu);
   // Returns how many departed points were seen through.
   int64_t JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame, const LocalMap& map,
                         const std::function<bool(const Vec3f&)>& seen_through, WorkerPool* pool);
