@@ -47,10 +47,12 @@ namespace rim {
 // The nearest return per bin of direction (azimuth, elevation) of one scan, in the sensor frame.
 class RangeImage {
  public:
-  // Per point of the scan while filling: its bin, or ~0 when not binned, and its place in it.
+  // Per point of the scan while filling: its bin, or ~0 when not binned, its place in it and its
+  // range in centimetres.
   struct Scratch {
     std::vector<uint32_t> bins;
     std::vector<uint16_t> offsets;
+    std::vector<uint16_t> ranges_cm;
   };
 
   explicit RangeImage(float bin_deg);
@@ -95,6 +97,17 @@ class RangeImage {
     const uint16_t cm = range_cm_[size_t(row) * na_ + azimuth];
     return cm == kEmpty ? std::numeric_limits<float>::infinity() : 0.01f * float(cm);
   }
+  // Row `elevation`'s ranges (centimetres, empty_cm() where the bin holds no return, 0 where it
+  // is blocked) and return places (8 bits each way, as OffsetAt decodes them), azimuth-indexed;
+  // null for a row without returns (every bin empty). Row r's fired flag: Fired().
+  const uint16_t* RangeRow(int elevation) const {
+    const int row = elevation - first_row_;
+    return unsigned(row) < unsigned(rows_) ? &range_cm_[size_t(row) * na_] : nullptr;
+  }
+  const uint16_t* OffsetRow(int elevation) const {
+    return &offset_[size_t(elevation - first_row_) * na_];
+  }
+  static constexpr uint16_t empty_cm() { return kEmpty; }
   // Where in bin (azimuth, elevation), already wrapped, its nearest return lies: offsets in
   // [0, 1) of a bin from the bin's lower corner. Only for a bin that holds a return.
   void OffsetAt(int azimuth, int elevation, float* da, float* de) const {
@@ -109,6 +122,8 @@ class RangeImage {
   // frame's points are judged in random directions (a float image of every elevation was 1.6 MB,
   // and judging waited on memory).
   static constexpr uint16_t kEmpty = 0xffff;
+  // PlaceOf for eight points, with their ranges (AVX2; the same bits as PlaceOf and norm()).
+  void Place8(const Vec3f* p, float* range, float* azimuth, float* elevation) const;
   float inv_bin_rad_;
   int na_, ne_;
   int first_row_ = 0, rows_ = 0;
