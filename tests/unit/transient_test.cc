@@ -147,6 +147,39 @@ TEST(RangeImageTest, EachBinHoldsTheNearestReturnInItsDirection) {
   EXPECT_EQ(held, int(nearest.size()));
 }
 
+// A point below the scan's lowest ring (beside the sensor, on or above the ground) can never have
+// returns below it in its window: it is kept, and reported as something there when a return of
+// the ring lies within the near distance of it (only those bins are read for it).
+TEST(TransientTest, PointsBelowTheLowestRingAreKeptOrSomethingIsThere) {
+  const Scan scan = Take(Ground(), PoseAt(0.f, 0.f), 3);
+  RangeImage image(TransientConfig().bin_deg);
+  image.Fill(scan.points_S, 1.f, 60.f);
+  // The lowest ring's return straight ahead (x > 0, y about 0).
+  Vec3f ring = Vec3f::Zero();
+  for (const Vec3f& q : scan.points_S) {
+    if (q.x() <= 0.f || std::abs(q.y()) > 0.05f * q.x()) continue;
+    if (ring.isZero() || q.z() / q.norm() < ring.z() / ring.norm()) ring = q;
+  }
+  ASSERT_FALSE(ring.isZero());
+  int e_ring, e_below, a;
+  image.BinOf(ring, &a, &e_ring);
+  ASSERT_EQ(e_ring, image.first_row());
+  const TransientConfig config;
+  // 3.5 cm below the ring's return: a row below the image's rows, the return within reach.
+  const Vec3f just_below = ring - Vec3f(0.f, 0.f, 0.035f);
+  image.BinOf(just_below, &a, &e_below);
+  ASSERT_LT(e_below, image.first_row());
+  EXPECT_EQ(Judge(image, config, just_below), Verdict::kSomethingThere);
+  // 30 cm below it, and a ground point 2 m from the sensor (40° below the ring): nothing near.
+  EXPECT_EQ(Judge(image, config, ring - Vec3f(0.f, 0.f, 0.3f)), Verdict::kKept);
+  EXPECT_EQ(Judge(image, config, Vec3f(2.f, 0.3f, -1.7f)), Verdict::kKept);
+  // Returns nearer than the minimum range block the ring's row: kept, not something there.
+  RangeImage blocked(TransientConfig().bin_deg);
+  blocked.Fill(scan.points_S, ring.norm() + 0.2f, 60.f);
+  EXPECT_TRUE(blocked.RowBlocked(blocked.first_row()));
+  EXPECT_EQ(Judge(blocked, config, just_below), Verdict::kKept);
+}
+
 TEST(TransientTest, AWallSeenThenARayThroughItIsDropped) {
   AnalyticScene before = Ground();
   before.boxes.push_back({Eigen::Vector3f(8.f, -1.f, -0.05f), Eigen::Vector3f(8.5f, 1.f, 2.f)});

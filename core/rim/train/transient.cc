@@ -223,11 +223,13 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   // fill 60-100 % of theirs); rows between its rings hold none.
   empty_range_m_ = max_range_m;
   fired_.assign(size_t(rows_), 0);
+  blocked_.assign(size_t(rows_), 0);
   const int enough = std::max(1, int(std::ceil(fired_row_share * float(na_))));
   for (int row = 0; row < rows_; ++row) {
     const uint16_t* line = &range_cm_[size_t(row) * na_];
     fired_[size_t(row)] =
         std::count_if(line, line + na_, [](uint16_t v) { return v != kEmpty; }) >= enough;
+    blocked_[size_t(row)] = std::find(line, line + na_, uint16_t(0)) != line + na_;
   }
 }
 
@@ -267,6 +269,43 @@ Verdict Judge(const RangeImage& image, const TransientConfig& c, const Vec3f& p_
       ++in_front;
     }
     if (in_front == 3) return Verdict::kKept;
+  }
+  // Outside the scan's rows: when p's own row and every row below it (or above it) hold no
+  // returns, nothing below (above) p can be seen, its window never has returns on both sides in
+  // elevation, and the verdict is kept, unless the window's scan below meets a return within
+  // `near` of p (something there) or a blocked bin first. Without blocked bins in the window's
+  // rows only the bins within `near` can decide it, and only they are read: the same verdict. These
+  // are mostly points beside the sensor, below its lowest ring, whose windows are the widest.
+  const int rows_lo = image.first_row(), rows_hi = rows_lo + image.rows() - 1;
+  if (e0 < rows_lo || e0 > rows_hi) {
+    bool blocked = false;
+    for (int e = std::max(e0 - we, rows_lo); e <= std::min(e0 + we, rows_hi); ++e)
+      blocked |= image.RowBlocked(e);
+    if (!blocked) {
+      // A return within `near` lies less than reach bins from p in both directions.
+      const float reach = near / bin_m;
+      const int de_max = std::min(we, int(std::ceil(reach)) + 1);
+      const int da_max = std::min(wa, int(std::ceil(reach / std::max(cos_el, 1e-6f))) + 1);
+      for (int e = std::max(e0 - de_max, rows_lo); e <= std::min(e0 + de_max, rows_hi); ++e) {
+        const uint16_t* ranges = image.RangeRow(e);
+        const uint16_t* places = image.OffsetRow(e);
+        for (int da = -da_max; da <= da_max; ++da) {
+          int a = a0 + da;
+          if (a < 0) a += na;
+          if (a >= na) a -= na;
+          const uint16_t cm = ranges[a];
+          if (cm == RangeImage::empty_cm()) continue;
+          const float v = 0.01f * float(cm);
+          const uint16_t o = places[a];
+          const float oa = (float(o & 0xff) + 0.5f) * (1.f / 256.f);
+          const float oe = (float(o >> 8) + 0.5f) * (1.f / 256.f);
+          const float x = (float(a0 + da) + oa - fa) * cos_el, y = (float(e) + oe - fe);
+          const float dr = v - r;
+          if (bin_m2 * (x * x + y * y) + dr * dr < near2) return Verdict::kSomethingThere;
+        }
+      }
+      return Verdict::kKept;
+    }
   }
   // Least squares of 1/range = t0 + t1·x + t2·y over the window's returns, x and y their angular
   // offsets from p in bins (azimuth scaled by cos(elevation)): sums in double.
@@ -582,17 +621,21 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
   // marking. One per finest voxel is enough to judge the voxel by.
   const Eigen::Array3f lo = map.min_m().cast<float>().array(),
                        hi = map.max_m().cast<float>().array();
+  int64_t last = -1;  // the voxel of the last point looked up: a scan's neighbours share voxels
   for (size_t i = 0; i < points.size(); ++i) {
     if (drop_[i]) continue;
     const Eigen::Array3f q = points[i].array();
     if ((q >= lo).all() && (q < hi).all()) continue;
     const int64_t v = pack(voxel_of(points[i]));
+    if (v == last) continue;
+    last = v;
     if (departed_voxels_.insert(v).second)
       departed_.push_back({points[i], frame, v, int(v % (2 * config_.period_frames))});
   }
-  // Forget the oldest: past departed_frames, and beyond the bound.
+  // Forget the oldest: past departed_frames, and beyond the bound. The list keeps its head as an
+  // index and is compacted only when points go from its middle or half of it is spent.
   const size_t bound = size_t(config_.max_departed_points);
-  size_t first = 0;
+  size_t& first = departed_head_;
   while (first < departed_.size() && (departed_[first].frame < frame - config_.departed_frames ||
                                       departed_.size() - first > bound)) {
     departed_voxels_.erase(departed_[first].voxel);
@@ -602,31 +645,35 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
   // meshing and the distances wait for the verdict.
   const int period = 2 * config_.period_frames;
   const int phase = int(frame % period);
-  const size_t count = departed_.size() - first;
-  departed_drop_.assign(count, 0);
-  JudgeInPieces(count, pool, [&](size_t i) {
-    const Departed& d = departed_[first + i];
-    if (d.turn == phase) departed_drop_[i] = seen_through(d.p);
-  });
-  size_t out = 0;
+  std::vector<uint32_t>& turn = departed_turn_;
+  turn.clear();
+  for (size_t i = first; i < departed_.size(); ++i)
+    if (departed_[i].turn == phase) turn.push_back(uint32_t(i - first));
+  departed_drop_.assign(turn.size(), 0);
+  JudgeInPieces(turn.size(), pool,
+                [&](size_t k) { departed_drop_[k] = seen_through(departed_[first + turn[k]].p); });
   int64_t seen = 0;
-  for (size_t i = 0; i < count; ++i) {
-    const Departed& d = departed_[first + i];
-    if (departed_drop_[i]) {
-      // Its voxel and their neighbours, as the live map's unmarking does; those still in the box
-      // are left to the buffer's own judgement.
-      const Int3 g = voxel_of(d.p);
-      for (int k = 0; k < 27; ++k) {
-        const Int3 v = g + Int3(k / 9 - 1, k / 3 % 3 - 1, k % 3 - 1);
-        if (!map.InBox(0, v)) outside_cells_.push_back(v);
-      }
-      departed_voxels_.erase(d.voxel);
-      ++seen;
-      continue;
+  for (size_t k = 0; k < turn.size(); ++k) {
+    if (!departed_drop_[k]) continue;
+    Departed& d = departed_[first + turn[k]];
+    // Its voxel and their neighbours, as the live map's unmarking does; those still in the box
+    // are left to the buffer's own judgement.
+    const Int3 g = voxel_of(d.p);
+    for (int j = 0; j < 27; ++j) {
+      const Int3 v = g + Int3(j / 9 - 1, j / 3 % 3 - 1, j % 3 - 1);
+      if (!map.InBox(0, v)) outside_cells_.push_back(v);
     }
-    departed_[out++] = d;
+    departed_voxels_.erase(d.voxel);
+    d.frame = -1;  // gone: removed below
+    ++seen;
   }
-  departed_.resize(out);
+  if (seen > 0 || first > departed_.size() / 2) {
+    size_t out = 0;
+    for (size_t i = first; i < departed_.size(); ++i)
+      if (departed_[i].frame >= 0) departed_[out++] = departed_[i];
+    departed_.resize(out);
+    first = 0;
+  }
   return seen;
 }
 

@@ -90,6 +90,12 @@ class RangeImage {
     return unsigned(row) < unsigned(rows_) && fired_[size_t(row)];
   }
   float empty_range_m() const { return empty_range_m_; }
+  // The rows that hold returns: [first_row(), first_row() + rows()); every other row is empty.
+  int first_row() const { return first_row_; }
+  int rows() const { return rows_; }
+  // Whether row `elevation` (one of those) holds a blocked bin (a return nearer than the minimum
+  // range).
+  bool RowBlocked(int elevation) const { return blocked_[size_t(elevation - first_row_)] != 0; }
   // At() for an azimuth already in [0, azimuth_bins()).
   float AtWrapped(int azimuth, int elevation) const {
     const int row = elevation - first_row_;
@@ -130,6 +136,7 @@ class RangeImage {
   std::vector<uint16_t> range_cm_;
   std::vector<uint16_t> offset_;  // per bin: its return's place in it, 8 bits each way
   std::vector<uint8_t> fired_;    // per row
+  std::vector<uint8_t> blocked_;  // per row
   float empty_range_m_ = 0.f;
   Scratch scratch_;  // when Fill is given none
 };
@@ -201,7 +208,7 @@ class TransientFilter {
   // mapper marks them seen free in the global map (SubmapStore::ClearObserved). Each voxel once:
   // the buffer's points share them.
   std::vector<Int3> TakeOutsideCells();
-  size_t departed() const { return departed_.size(); }
+  size_t departed() const { return departed_.size() - departed_head_; }
 
   const ClearedPoints& cleared() const { return cleared_; }
   ClearedPoints& cleared() { return cleared_; }
@@ -240,8 +247,10 @@ class TransientFilter {
     int64_t voxel;  // packed finest voxel, one departed point per voxel
     int turn;       // judged in frames with frame mod (2 · period_frames) equal to this
   };
-  std::vector<Departed> departed_;  // in the order they left
-  std::vector<uint8_t> departed_drop_;
+  std::vector<Departed> departed_;  // in the order they left, from departed_head_ on
+  size_t departed_head_ = 0;
+  std::vector<uint32_t> departed_turn_;  // this frame's turn: indices from the head
+  std::vector<uint8_t> departed_drop_;   // per index of the turn
   absl::flat_hash_set<int64_t> departed_voxels_;
   std::vector<Int3> outside_cells_;
 };
