@@ -2,10 +2,17 @@
 """Renders a mesh.ply (as written by rim_map / rimctl) to a PNG picture, headless.
 
 Usage: render_mesh.py MESH.ply OUT.png [--view top|oblique] [--size 1200x800]
+                      [--missing-in OTHER.ply [--missing-m 0.1]]
 
 A z-buffered splat renderer in numpy (Debian's python3-numpy): every face is drawn as its
 centroid, shaded by its normal (Lambert with a fixed light) and tinted by height. Good enough to
 look at a map; no OpenGL or display needed.
+
+With --missing-in, the faces of MESH that OTHER lacks are drawn red, over the rest and three
+pixels wide, and counted (faces and area):
+those with no vertex of OTHER in the cube of cells of --missing-m around their centroid, so none
+within that distance. For example MESH mapped without a filter and OTHER with it: red is what the
+filter removed.
 """
 import argparse
 import struct
@@ -66,7 +73,25 @@ def write_png(path, rgb):
         f.write(png)
 
 
-def render(verts, faces, width, height, view):
+def missing_faces(verts, faces, other_verts, cell_m):
+    """Faces of (verts, faces) with no vertex of other_verts in the 27 cells of cell_m around
+    their centroid (cells of a grid at the origin): none lies within cell_m of the centroid."""
+    def keys(cells):
+        c = cells.astype(np.int64) + (1 << 20)
+        return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+    occupied = np.unique(keys(np.floor(other_verts / cell_m)))
+    cells = np.floor(verts[faces].mean(axis=1) / cell_m)
+    near = np.zeros(len(faces), dtype=bool)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                k = keys(cells + np.array([dx, dy, dz]))
+                i = np.clip(np.searchsorted(occupied, k), 0, len(occupied) - 1)
+                near |= occupied[i] == k
+    return ~near
+
+
+def render(verts, faces, width, height, view, red=None):
     tri = verts[faces]
     centroid = tri.mean(axis=1)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -96,6 +121,13 @@ def render(verts, faces, width, height, view):
     order = np.argsort(-depth)
     img = np.full((height, width, 3), 255, dtype=np.uint8)
     img[v[order], u[order]] = (np.clip(color[order], 0, 1) * 255).astype(np.uint8)
+    if red is not None:
+        # Drawn over the rest, three pixels wide, so that a few small faces still show.
+        r = red[ok]
+        for du in (-1, 0, 1):
+            for dv in (-1, 0, 1):
+                img[np.clip(v[r] + dv, 0, height - 1), np.clip(u[r] + du, 0, width - 1)] = \
+                    (230, 20, 12)
     return img
 
 
@@ -105,6 +137,10 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--view", choices=["top", "oblique"], default="oblique")
     ap.add_argument("--size", default="1200x800")
+    ap.add_argument("--missing-in", metavar="OTHER.ply",
+                    help="draw red, and count, the faces that OTHER.ply lacks")
+    ap.add_argument("--missing-m", type=float, default=0.1,
+                    help="a face is missing when OTHER has no vertex within this distance (m)")
     a = ap.parse_args()
     w, h = (int(x) for x in a.size.split("x"))
     try:
@@ -115,7 +151,23 @@ def main():
     if len(faces) == 0:
         print(f"render_mesh: {a.mesh} has no faces", file=sys.stderr)
         return 1
-    write_png(a.out, render(verts, faces, w, h, a.view))
+    red = None
+    if a.missing_in:
+        if not a.missing_m > 0:
+            print(f"render_mesh: --missing-m must be > 0 (got {a.missing_m})", file=sys.stderr)
+            return 1
+        try:
+            other, _ = read_ply(a.missing_in)
+        except (OSError, ValueError) as e:
+            print(f"render_mesh: {e}", file=sys.stderr)
+            return 1
+        red = missing_faces(verts, faces, other, a.missing_m)
+        tri = verts[faces[red]]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                    axis=1).sum()
+        print(f"render_mesh: {int(red.sum())} of {len(faces)} faces ({area:.2f} m2) have no "
+              f"vertex of {a.missing_in} within {a.missing_m} m (red)")
+    write_png(a.out, render(verts, faces, w, h, a.view, red))
     print(f"render_mesh: {len(faces)} faces -> {a.out}")
     return 0
 
