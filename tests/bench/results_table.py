@@ -363,6 +363,7 @@ MEMORY = "2026-11-24-memory.json"
 LONG500 = "2026-11-22-long500-half.maicity_online.csv"
 MOVING = "2026-11-28-moving-things-earlier.json"
 TRANSIENT_COST = "2026-11-28-transient-cost.json"
+CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
 GPU_MAP = "2026-11-28-gpu-rim-map.json"
@@ -540,6 +541,16 @@ TABLES = {
         Row("C-L1, filter on, above the same city without movers, %",
             lambda r: moving_c_l1_pct(r, MOVING), {"digits": 1, "signed": True},
             "the static city", ("≤ +3", ("<=", 3)), [MOVING]),
+        Row("planner points on the crossing lines within 5 cm of the static scene, %",
+            lambda r: r.values(CROSSINGS, "within_5cm_pct", build="after"), F1,
+            lambda r: "the build before: " + fmt_range(
+                r.values(CROSSINGS, "within_5cm_pct", build="before")), ("≥ 95", (">=", 95)),
+            [CROSSINGS]),
+        Row("planner points on the crossing lines more than 10 cm too near",
+            lambda r: r.values(CROSSINGS, "too_near", build="after"), {"digits": 0},
+            lambda r: "the build before: " + fmt_range(
+                r.values(CROSSINGS, "too_near", build="before"), digits=0), ("0", ("<=", 0)),
+            [CROSSINGS]),
         Row("a `maicity_online` frame with the filter, above the same without it, alternating, %",
             lambda r: [100 * (p["on_ms"] / p["off_ms"] - 1)
                        for p in r.runs(TRANSIENT_COST, kind="pair", build="after")],
