@@ -79,6 +79,8 @@ def missing_faces(verts, faces, other_verts, cell_m):
     def keys(cells):
         c = cells.astype(np.int64) + (1 << 20)
         return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+    if len(other_verts) == 0:
+        return np.ones(len(faces), dtype=bool)
     occupied = np.unique(keys(np.floor(other_verts / cell_m)))
     cells = np.floor(verts[faces].mean(axis=1) / cell_m)
     near = np.zeros(len(faces), dtype=bool)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """clients/tools/render_mesh.py draws a mesh and, with --missing-in, marks and counts the faces
 that another mesh lacks: two squares of two faces each, one of them only in the first mesh,
-give 2 missing faces of 1 m² in all (at 1 m), drawn red; a bad distance or a missing file fails with the
+give 2 missing faces of 1 m² in all (at 1 m), drawn red, and an empty mesh lacks all 4; a bad distance or a missing file fails with the
 problem named.
 
 Usage: render_mesh_test.py RENDER_MESH_PY
@@ -72,6 +72,10 @@ def main(script):
                 "--missing-m", "1")
         assert r.returncode == 0 and "0 of 4 faces (0.00 m2)" in r.stdout, r.stdout
         assert red_pixels(png) == 0
+        empty = os.path.join(d, "empty.ply")
+        write_ply(empty, [], [])
+        r = run(both, png, "--missing-in", empty, "--missing-m", "1")
+        assert r.returncode == 0 and "4 of 4 faces (2.00 m2)" in r.stdout, r.stdout + r.stderr
         r = run(both, png, "--missing-in", one, "--missing-m", "0")
         assert r.returncode == 1 and "--missing-m must be > 0" in r.stderr, r.stderr
         r = run(both, png, "--missing-in", os.path.join(d, "absent.ply"))
