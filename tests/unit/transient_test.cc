@@ -391,6 +391,41 @@ TEST(TransientTest, SurfacesHiddenOrSeenOnceFromAfarAreKept) {
   EXPECT_EQ(dropped_wall, 0);
 }
 
+// The filter judges its points eight at a time over the pool (their places at once): it drops
+// exactly the points that Judge, one at a time, sees through, and keeps the rest in their order.
+TEST(TransientTest, TheFilterDropsExactlyThePointsJudgeSeesThrough) {
+  AnalyticScene before = Ground();
+  before.boxes.push_back({Eigen::Vector3f(8.f, -1.f, -0.05f), Eigen::Vector3f(8.5f, 1.f, 2.f)});
+  before.boxes.push_back({Eigen::Vector3f(-6.f, 5.f, -0.05f), Eigen::Vector3f(9.f, 6.f, 7.f)});
+  before.cylinders.push_back({Eigen::Vector2f(4.f, -3.f), 0.1f, -0.05f, 3.f});
+  AnalyticScene after = before;
+  after.boxes.erase(after.boxes.begin());  // the near wall has gone
+  const Scan first = Take(before, PoseAt(0, 0), 1, CarLidar(0.03f));
+  const Scan later = Take(after, PoseAt(1.3f, 0.4f), 2, CarLidar(0.03f));
+  PointBuffer buffer = BufferOf(first);
+  const std::vector<Vec3f> points = buffer.points();
+  TransientConfig config;
+  config.period_frames = 1;
+  TransientFilter filter(config);
+  WorkerPool pool(2);
+  std::mutex mu;
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &buffer, nullptr, nullptr, &mu, &pool);
+  const Eigen::Isometry3f S_W = later.T.inverse();
+  std::vector<Vec3f> kept;
+  int seen_through = 0;
+  for (const Vec3f& p : points) {
+    if (SeenThrough(filter.image(), config, S_W * p)) {
+      ++seen_through;
+    } else {
+      kept.push_back(p);
+    }
+  }
+  ASSERT_GT(points.size(), 50000u);
+  ASSERT_GT(seen_through, 500);  // the near wall
+  ASSERT_EQ(buffer.points().size(), kept.size());
+  for (size_t i = 0; i < kept.size(); ++i) ASSERT_EQ(buffer.points()[i], kept[i]) << i;
+}
+
 TEST(TransientTest, DeferredRaysSeenThroughAreDroppedAndStaticOnesKept) {
   auto config = MakePreset("maicity");
   ASSERT_TRUE(config.ok());

@@ -82,21 +82,6 @@ const double* InverseRanges() {
   return table.data();
 }
 
-// Calls judge(i) for i in [0, n), in pieces over the pool when there are enough: a judgement
-// costs 0.1-1 µs, so a thousand of them outweigh waking the workers.
-void JudgeInPieces(size_t n, WorkerPool* pool, const std::function<void(size_t)>& judge) {
-  constexpr int kPieces = 8;
-  auto piece = [&](int k) {
-    const size_t begin = n * size_t(k) / kPieces, end = n * size_t(k + 1) / kPieces;
-    for (size_t i = begin; i < end; ++i) judge(i);
-  };
-  if (pool && n >= 1024) {
-    pool->Run(kPieces, piece);
-  } else {
-    for (int k = 0; k < kPieces; ++k) piece(k);
-  }
-}
-
 }  // namespace
 
 RangeImage::RangeImage(float bin_deg) {
@@ -116,8 +101,9 @@ void RangeImage::PlaceOf(const Vec3f& d, float* azimuth, float* elevation) const
 }
 
 #ifdef RIM_TRANSIENT_AVX2
-__attribute__((target("avx2"))) void RangeImage::Place8(const Vec3f* p, float* range,
-                                                        float* azimuth, float* elevation) const {
+__attribute__((target("avx2"))) void RangeImage::Place8Avx2(const Vec3f* p, float* range,
+                                                            float* azimuth,
+                                                            float* elevation) const {
   alignas(32) float xs[8], ys[8], zs[8];
   for (int l = 0; l < 8; ++l) {
     xs[l] = p[l].x();
@@ -137,6 +123,64 @@ __attribute__((target("avx2"))) void RangeImage::Place8(const Vec3f* p, float* r
                                             _mm256_set1_ps(float(ne_) - 1e-3f)));
 }
 #endif
+
+#ifdef RIM_TRANSIENT_AVX2
+__attribute__((target("avx2"))) void RangeImage::Bin8Avx2(const Vec3f* p, float min_range_m,
+                                                          float max_range_m, uint32_t* bins,
+                                                          uint16_t* offsets, uint16_t* ranges_cm,
+                                                          int* lo, int* hi) const {
+  alignas(32) float rs[8], fas[8], fes[8];
+  Place8Avx2(p, rs, fas, fes);
+  const __m256 r = _mm256_load_ps(rs), fa = _mm256_load_ps(fas), fe = _mm256_load_ps(fes);
+  // Binned: 0 < r <= max_range_m (false for NaN, as the scalar test).
+  const __m256 binned = _mm256_and_ps(_mm256_cmp_ps(r, _mm256_setzero_ps(), _CMP_GT_OQ),
+                                      _mm256_cmp_ps(r, _mm256_set1_ps(max_range_m), _CMP_LE_OQ));
+  const __m256i a = _mm256_min_epi32(_mm256_cvttps_epi32(fa), _mm256_set1_epi32(na_ - 1));
+  const __m256i e = _mm256_min_epi32(_mm256_cvttps_epi32(fe), _mm256_set1_epi32(ne_ - 1));
+  const __m256i bin = _mm256_or_si256(_mm256_slli_epi32(e, 16), a);
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(bins),
+                      _mm256_blendv_epi8(_mm256_set1_epi32(-1), bin, _mm256_castps_si256(binned)));
+  const __m256 k256 = _mm256_set1_ps(256.f);
+  const __m256i max255 = _mm256_set1_epi32(255);
+  const __m256i oe = _mm256_min_epi32(
+      _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_sub_ps(fe, _mm256_cvtepi32_ps(e)), k256)), max255);
+  const __m256i oa = _mm256_min_epi32(
+      _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_sub_ps(fa, _mm256_cvtepi32_ps(a)), k256)), max255);
+  const __m256i offset = _mm256_or_si256(_mm256_slli_epi32(oe, 8), oa);
+  const __m256i cm = _mm256_andnot_si256(
+      _mm256_castps_si256(_mm256_cmp_ps(r, _mm256_set1_ps(min_range_m), _CMP_LT_OQ)),
+      _mm256_cvttps_epi32(_mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(100.f), r),
+                                        _mm256_set1_ps(float(kEmpty - 1)))));
+  // To 16 bits (every value fits): pack, then put the two halves side by side.
+  _mm_storeu_si128(
+      reinterpret_cast<__m128i*>(offsets),
+      _mm256_castsi256_si128(_mm256_permute4x64_epi64(_mm256_packus_epi32(offset, offset), 0x08)));
+  _mm_storeu_si128(
+      reinterpret_cast<__m128i*>(ranges_cm),
+      _mm256_castsi256_si128(_mm256_permute4x64_epi64(_mm256_packus_epi32(cm, cm), 0x08)));
+  const int mask = _mm256_movemask_ps(binned);
+  if (mask != 0) {
+    alignas(32) int32_t es[8];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(es), e);
+    for (int l = 0; l < 8; ++l) {
+      if (!(mask >> l & 1)) continue;
+      *lo = std::min(*lo, es[l]);
+      *hi = std::max(*hi, es[l]);
+    }
+  }
+}
+#endif
+
+void RangeImage::Place8(const Vec3f* p, float* range, float* azimuth, float* elevation) const {
+#ifdef RIM_TRANSIENT_AVX2
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) return Place8Avx2(p, range, azimuth, elevation);
+#endif
+  for (int l = 0; l < 8; ++l) {
+    range[l] = p[l].norm();
+    PlaceOf(p[l], &azimuth[l], &elevation[l]);
+  }
+}
 
 void RangeImage::BinOf(const Vec3f& d, int* azimuth, int* elevation) const {
   const float az = FastAtan2(d.y(), d.x());                                     // (−π, π]
@@ -182,11 +226,9 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
     };
 #ifdef RIM_TRANSIENT_AVX2
     if (avx2) {
-      for (; i + 8 <= end; i += 8) {
-        float r[8], fa[8], fe[8];
-        Place8(&points_S[i], r, fa, fe);
-        for (int l = 0; l < 8; ++l) bin(i + size_t(l), r[l], fa[l], fe[l]);
-      }
+      for (; i + 8 <= end; i += 8)
+        Bin8Avx2(&points_S[i], min_range_m, max_range_m, &scratch[i], &scratch_offset[i],
+                 &scratch_cm[i], &lo, &hi);
     }
 #endif
     for (; i < end; ++i) {
@@ -207,17 +249,33 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   const int hi = *std::max_element(piece_hi, piece_hi + kPieces);
   first_row_ = lo;
   rows_ = std::max(0, hi - lo + 1);
-  range_cm_.assign(size_t(rows_) * na_, kEmpty);
-  offset_.assign(size_t(rows_) * na_, 0);
-  for (size_t i = 0; i < points_S.size(); ++i) {
-    if (scratch[i] == ~0u) continue;
-    const int e = int(scratch[i] >> 16), a = int(scratch[i] & 0xffff);
-    const uint16_t cm = scratch_cm[i];
-    const size_t slot = size_t(e - first_row_) * na_ + a;
-    if (cm < range_cm_[slot]) {
-      range_cm_[slot] = cm;
-      offset_[slot] = scratch_offset[i];
+  range_cm_.resize(size_t(rows_) * na_);
+  offset_.resize(size_t(rows_) * na_);
+  // The nearest return per bin, the first of equals in the points' order, in bands of rows over
+  // the pool: each band reads every point and writes only its own rows.
+  constexpr int kBands = 2;
+  auto band = [&](int k) {
+    const int row_lo = rows_ * k / kBands, row_hi = rows_ * (k + 1) / kBands;
+    std::fill(range_cm_.begin() + ptrdiff_t(row_lo) * na_,
+              range_cm_.begin() + ptrdiff_t(row_hi) * na_, kEmpty);
+    std::fill(offset_.begin() + ptrdiff_t(row_lo) * na_, offset_.begin() + ptrdiff_t(row_hi) * na_,
+              uint16_t(0));
+    const uint32_t e_lo = uint32_t(first_row_ + row_lo), e_hi = uint32_t(first_row_ + row_hi);
+    for (size_t i = 0; i < n; ++i) {
+      const uint32_t e = scratch[i] >> 16;  // 0xffff when not binned
+      if (e < e_lo || e >= e_hi) continue;
+      const uint16_t cm = scratch_cm[i];
+      const size_t slot = size_t(e - uint32_t(first_row_)) * na_ + (scratch[i] & 0xffff);
+      if (cm < range_cm_[slot]) {
+        range_cm_[slot] = cm;
+        offset_[slot] = scratch_offset[i];
+      }
     }
+  };
+  if (pool && n >= 4096) {
+    pool->Run(kBands, band);
+  } else {
+    for (int k = 0; k < kBands; ++k) band(k);
   }
   // Rows the sensor fired along: a spinning sensor's rings fill most of their row (a city scan's
   // fill 60-100 % of theirs); rows between its rings hold none.
@@ -233,12 +291,13 @@ void RangeImage::Fill(const std::vector<Vec3f>& points_S, float min_range_m, flo
   }
 }
 
-Verdict Judge(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
-  const float r = p_S.norm();
+namespace {
+
+// Judge, for p_S at range r and place (fa, fe) in the image (RangeImage::PlaceOf).
+Verdict JudgePlaced(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S, float r,
+                    float fa, float fe) {
   if (!(r >= c.min_range_m && r <= c.max_range_m)) return Verdict::kKept;
   const float beyond = r + c.margin_m + c.margin_per_m * r;
-  float fa, fe;
-  image.PlaceOf(p_S, &fa, &fe);
   const int a0 = int(fa), e0 = int(fe);
   bool left = false, right = false, below = false, above = false, all_beyond = true;
   // The window: so many bins, and at least window_min_m each side at the point's range (in
@@ -400,6 +459,78 @@ Verdict Judge(const RangeImage& image, const TransientConfig& c, const Vec3f& p_
   return rms_range <= allowed ? Verdict::kSeenThrough : Verdict::kKept;
 }
 
+// Judges the points i of [begin, end) for which want(i) holds, p_S(i) in the image's sensor frame,
+// and hands each verdict to done(i, verdict): eight places at a time (RangeImage::Place8, the
+// bits of PlaceOf and norm()).
+template <class Want, class PointAt, class Done>
+void JudgeRange(const RangeImage& image, const TransientConfig& c, size_t begin, size_t end,
+                Want want, PointAt p_S, Done done) {
+  Vec3f p[8];
+  size_t index[8];
+  int m = 0;
+  auto flush = [&] {
+    float r[8], fa[8], fe[8];
+    for (int l = m; l < 8; ++l) p[l] = p[0];  // a full batch
+    image.Place8(p, r, fa, fe);
+    for (int l = 0; l < m; ++l) done(index[l], JudgePlaced(image, c, p[l], r[l], fa[l], fe[l]));
+    m = 0;
+  };
+  for (size_t i = begin; i < end; ++i) {
+    if (!want(i)) continue;
+    p[m] = p_S(i);
+    index[m++] = i;
+    if (m == 8) flush();
+  }
+  if (m > 0) flush();
+}
+
+// Calls judge(begin, end) on pieces that cover [0, n), over the pool when there are enough: a
+// judgement costs 0.1-1 µs, so a thousand of them outweigh waking the workers.
+void JudgeInPieces(size_t n, WorkerPool* pool,
+                   const std::function<void(size_t begin, size_t end)>& judge) {
+  constexpr int kPieces = 8;
+  auto piece = [&](int k) { judge(n * size_t(k) / kPieces, n * size_t(k + 1) / kPieces); };
+  if (pool && n >= 1024) {
+    pool->Run(kPieces, piece);
+  } else {
+    for (int k = 0; k < kPieces; ++k) piece(k);
+  }
+}
+
+// Where a scan was taken from, to judge world points against its image.
+struct SensorView {
+  const RangeImage& image;
+  Eigen::Matrix3f R_SW;
+  Vec3f sensor_W;
+  SensorView(const RangeImage& image, const Eigen::Isometry3f& T_world_sensor)
+      : image(image),
+        R_SW(T_world_sensor.linear().transpose()),
+        sensor_W(T_world_sensor.translation()) {}
+  Vec3f ToSensor(const Vec3f& p_W) const { return R_SW * (p_W - sensor_W); }
+};
+
+// Sets drop[i] for the world points p_W(i), i in [0, n), that the scan saw through.
+template <class PointAt>
+void SeenThroughInPieces(const SensorView& view, const TransientConfig& c, size_t n,
+                         WorkerPool* pool, PointAt p_W, uint8_t* drop) {
+  JudgeInPieces(n, pool, [&](size_t begin, size_t end) {
+    JudgeRange(
+        view.image, c, begin, end, [](size_t) { return true; },
+        [&](size_t i) { return view.ToSensor(p_W(i)); },
+        [&](size_t i, Verdict v) { drop[i] = v == Verdict::kSeenThrough; });
+  });
+}
+
+}  // namespace
+
+Verdict Judge(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
+  const float r = p_S.norm();
+  if (!(r >= c.min_range_m && r <= c.max_range_m)) return Verdict::kKept;
+  float fa, fe;
+  image.PlaceOf(p_S, &fa, &fe);
+  return JudgePlaced(image, c, p_S, r, fa, fe);
+}
+
 bool SeenThrough(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
   return Judge(image, c, p_S) == Verdict::kSeenThrough;
 }
@@ -473,13 +604,9 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
               &fill_scratch_);
   image_T_ = T_world_sensor;
   image_frame_ = frame;
-  const Eigen::Matrix3f R_SW = T_world_sensor.linear().transpose();
-  const Vec3f sensor_W = T_world_sensor.translation();
+  const SensorView view(image_, T_world_sensor);
   const int period = config_.period_frames;
   const int phase = int(frame % period);
-  auto seen_through = [&](const Vec3f& p_W) {
-    return SeenThrough(image_, config_, R_SW * (p_W - sensor_W));
-  };
 
   // The buffer: this frame's turn (i mod period = phase) judged over the pool, each judgement
   // writing its own flag.
@@ -488,13 +615,16 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   drop_.assign(n, 0);
   const size_t turn =
       n > size_t(phase) ? (n - size_t(phase) + size_t(period) - 1) / size_t(period) : 0;
-  JudgeInPieces(turn, pool, [&](size_t k) {
-    const size_t i = size_t(phase) + k * size_t(period);
-    drop_[i] = seen_through(points[i]);
+  JudgeInPieces(turn, pool, [&](size_t begin, size_t end) {
+    auto index = [&](size_t k) { return size_t(phase) + k * size_t(period); };
+    JudgeRange(
+        image_, config_, begin, end, [](size_t) { return true; },
+        [&](size_t k) { return view.ToSensor(points[index(k)]); },
+        [&](size_t k, Verdict v) { drop_[index(k)] = v == Verdict::kSeenThrough; });
   });
   const bool unmark = map != nullptr && map->placed();
   const int64_t departed_seen = unmark && config_.departed_frames > 0
-                                    ? JudgeDeparted(points, frame, *map, seen_through, pool)
+                                    ? JudgeDeparted(points, frame, *map, T_world_sensor, pool)
                                     : 0;
   const int64_t dropped = DropFromBuffer(frame, 0, buffer, map, aux_mu);
   std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
@@ -503,10 +633,11 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   stats_.buffer_removed += dropped;
   if (deferred) {
     stats_.deferred_removed += deferred->RemoveIf(
-        sensor_W, config_.max_range_m, 2 * period, int(frame % (2 * period)),
+        view.sensor_W, config_.max_range_m, 2 * period, int(frame % (2 * period)),
         [&](const std::vector<Vec3f>& endpoints, std::vector<uint8_t>* drop) {
-          JudgeInPieces(endpoints.size(), pool,
-                        [&](size_t i) { (*drop)[i] = seen_through(endpoints[i]); });
+          SeenThroughInPieces(
+              view, config_, endpoints.size(), pool, [&](size_t i) { return endpoints[i]; },
+              drop->data());
         });
   }
 }
@@ -571,14 +702,15 @@ int64_t TransientFilter::JudgeNewest(int64_t frame, PointBuffer* buffer, LocalMa
     if (past_frame < 0) break;
     const PastScan& past = past_[size_t(past_frame % int64_t(past_.size()))];
     if (past.frame != past_frame) continue;  // not a scan judged by Apply (or not kept)
-    const Eigen::Matrix3f R_SW = past.T_world_sensor.linear().transpose();
-    const Vec3f sensor_W = past.T_world_sensor.translation();
+    const SensorView view(past.image, past.T_world_sensor);
     judged += std::count(state.begin() + std::ptrdiff_t(first), state.end(), uint8_t(0));
-    JudgeInPieces(n - first, pool, [&](size_t k) {
-      uint8_t& d = state[first + k];
-      if (d != 0) return;
-      const Verdict v = Judge(past.image, config_, R_SW * (points[first + k] - sensor_W));
-      d = v == Verdict::kSeenThrough ? 1 : v == Verdict::kSomethingThere ? 2 : 0;
+    JudgeInPieces(n - first, pool, [&](size_t begin, size_t end) {
+      JudgeRange(
+          past.image, config_, first + begin, first + end, [&](size_t i) { return state[i] == 0; },
+          [&](size_t i) { return view.ToSensor(points[i]); },
+          [&](size_t i, Verdict v) {
+            state[i] = v == Verdict::kSeenThrough ? 1 : v == Verdict::kSomethingThere ? 2 : 0;
+          });
     });
   }
   for (size_t i = first; i < n; ++i) state[i] = state[i] == 1;
@@ -605,8 +737,7 @@ std::vector<Int3> TransientFilter::TakeOutsideCells() {
 }
 
 int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame,
-                                       const LocalMap& map,
-                                       const std::function<bool(const Vec3f&)>& seen_through,
+                                       const LocalMap& map, const Eigen::Isometry3f& T_world_sensor,
                                        WorkerPool* pool) {
   const double inv_leaf = 1.0 / map.geometry().leaf_m();
   auto voxel_of = [&](const Vec3f& p) {
@@ -621,41 +752,64 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
   // marking. One per finest voxel is enough to judge the voxel by.
   const Eigen::Array3f lo = map.min_m().cast<float>().array(),
                        hi = map.max_m().cast<float>().array();
+  const int turns = 2 * config_.period_frames;
+  if (departed_.size() != size_t(turns)) departed_.resize(size_t(turns));
+  // Each voxel once, by its first point. A voxel the box left in an earlier frame has no points
+  // in the buffer now (the buffer takes only points inside the box), unless the box came back to
+  // it; then it is judged twice, which costs a little and changes nothing.
+  std::vector<std::pair<int64_t, uint32_t>>& leaving = departed_leaving_;
+  leaving.clear();
   int64_t last = -1;  // the voxel of the last point looked up: a scan's neighbours share voxels
+  const float lx = lo.x(), ly = lo.y(), lz = lo.z(), hx = hi.x(), hy = hi.y(), hz = hi.z();
   for (size_t i = 0; i < points.size(); ++i) {
+    const float* q = points[i].data();
+    // Inside the box (branch-free: nearly all are).
+    if ((q[0] >= lx) & (q[0] < hx) & (q[1] >= ly) & (q[1] < hy) & (q[2] >= lz) & (q[2] < hz))
+      continue;
     if (drop_[i]) continue;
-    const Eigen::Array3f q = points[i].array();
-    if ((q >= lo).all() && (q < hi).all()) continue;
     const int64_t v = pack(voxel_of(points[i]));
     if (v == last) continue;
     last = v;
-    if (departed_voxels_.insert(v).second)
-      departed_.push_back({points[i], frame, v, int(v % (2 * config_.period_frames))});
+    leaving.emplace_back(v, uint32_t(i));
   }
-  // Forget the oldest: past departed_frames, and beyond the bound. The list keeps its head as an
-  // index and is compacted only when points go from its middle or half of it is spent.
+  std::sort(leaving.begin(), leaving.end());
+  leaving.erase(std::unique(leaving.begin(), leaving.end(),
+                            [](const auto& a, const auto& b) { return a.first == b.first; }),
+                leaving.end());
+  std::sort(leaving.begin(), leaving.end(),
+            [](const auto& a, const auto& b) { return a.second < b.second; });
+  for (const auto& [v, i] : leaving) {
+    departed_[size_t(v % turns)].points.push_back({points[i], frame, departed_order_++});
+    ++departed_count_;
+  }
+  // Forget the oldest: past departed_frames, and beyond the bound, the oldest of all first. A
+  // list keeps its head as an index and is compacted when half of it is spent.
+  auto forget = [&](DepartedTurn& t) {
+    ++t.head;
+    --departed_count_;
+  };
+  for (DepartedTurn& t : departed_)
+    while (t.size() > 0 && t.points[t.head].frame < frame - config_.departed_frames) forget(t);
   const size_t bound = size_t(config_.max_departed_points);
-  size_t& first = departed_head_;
-  while (first < departed_.size() && (departed_[first].frame < frame - config_.departed_frames ||
-                                      departed_.size() - first > bound)) {
-    departed_voxels_.erase(departed_[first].voxel);
-    ++first;
+  while (departed_count_ > bound) {
+    DepartedTurn* oldest = nullptr;
+    for (DepartedTurn& t : departed_)
+      if (t.size() > 0 && (!oldest || t.points[t.head].order < oldest->points[oldest->head].order))
+        oldest = &t;
+    forget(*oldest);
   }
   // Judged half as often as the buffer: what the box left behind no longer trains, so only
   // meshing and the distances wait for the verdict.
-  const int period = 2 * config_.period_frames;
-  const int phase = int(frame % period);
-  std::vector<uint32_t>& turn = departed_turn_;
-  turn.clear();
-  for (size_t i = first; i < departed_.size(); ++i)
-    if (departed_[i].turn == phase) turn.push_back(uint32_t(i - first));
+  DepartedTurn& turn = departed_[size_t(frame % turns)];
+  const Departed* judged = turn.points.data() + turn.head;
   departed_drop_.assign(turn.size(), 0);
-  JudgeInPieces(turn.size(), pool,
-                [&](size_t k) { departed_drop_[k] = seen_through(departed_[first + turn[k]].p); });
+  SeenThroughInPieces(
+      SensorView(image_, T_world_sensor), config_, turn.size(), pool,
+      [&](size_t k) { return judged[k].p; }, departed_drop_.data());
   int64_t seen = 0;
-  for (size_t k = 0; k < turn.size(); ++k) {
+  for (size_t k = 0; k < departed_drop_.size(); ++k) {
     if (!departed_drop_[k]) continue;
-    Departed& d = departed_[first + turn[k]];
+    const Departed& d = judged[k];
     // Its voxel and their neighbours, as the live map's unmarking does; those still in the box
     // are left to the buffer's own judgement.
     const Int3 g = voxel_of(d.p);
@@ -663,16 +817,20 @@ int64_t TransientFilter::JudgeDeparted(const std::vector<Vec3f>& points, int64_t
       const Int3 v = g + Int3(j / 9 - 1, j / 3 % 3 - 1, j % 3 - 1);
       if (!map.InBox(0, v)) outside_cells_.push_back(v);
     }
-    departed_voxels_.erase(d.voxel);
-    d.frame = -1;  // gone: removed below
     ++seen;
   }
-  if (seen > 0 || first > departed_.size() / 2) {
-    size_t out = 0;
-    for (size_t i = first; i < departed_.size(); ++i)
-      if (departed_[i].frame >= 0) departed_[out++] = departed_[i];
-    departed_.resize(out);
-    first = 0;
+  if (seen > 0) {
+    size_t out = turn.head;
+    for (size_t k = 0; k < departed_drop_.size(); ++k)
+      if (!departed_drop_[k]) turn.points[out++] = judged[k];
+    turn.points.resize(out);
+    departed_count_ -= size_t(seen);
+  }
+  for (DepartedTurn& t : departed_) {
+    if (t.head > 0 && t.head >= t.points.size() / 2) {
+      t.points.erase(t.points.begin(), t.points.begin() + std::ptrdiff_t(t.head));
+      t.head = 0;
+    }
   }
   return seen;
 }

@@ -31,9 +31,9 @@
 #include <functional>
 #include <limits>
 #include <mutex>
+#include <utility>
 #include <vector>
 
-#include "absl/container/flat_hash_set.h"
 #include "rim/base/types.h"
 #include "rim/base/worker_pool.h"
 #include "rim/config/config.h"
@@ -75,6 +75,9 @@ class RangeImage {
   // The direction's place in bins, continuous: azimuth in [0, azimuth_bins()), elevation in
   // [0, elevation_bins()]; its bin is (floor(azimuth), floor(elevation)).
   void PlaceOf(const Vec3f& d_S, float* azimuth, float* elevation) const;
+  // PlaceOf for eight points, with their ranges: the same bits as PlaceOf and norm(), eight at a
+  // time where the processor has AVX2.
+  void Place8(const Vec3f* p, float* range, float* azimuth, float* elevation) const;
   float bin_rad() const { return 1.f / inv_bin_rad_; }
   // The nearest range in bin (azimuth, elevation), floored to the centimetre; +inf when it holds
   // no return. Azimuth wraps; elevation must be in [0, elevation_bins()).
@@ -128,8 +131,13 @@ class RangeImage {
   // frame's points are judged in random directions (a float image of every elevation was 1.6 MB,
   // and judging waited on memory).
   static constexpr uint16_t kEmpty = 0xffff;
-  // PlaceOf for eight points, with their ranges (AVX2; the same bits as PlaceOf and norm()).
-  void Place8(const Vec3f* p, float* range, float* azimuth, float* elevation) const;
+  // Place8 with AVX2 (only where the processor has it).
+  void Place8Avx2(const Vec3f* p, float* range, float* azimuth, float* elevation) const;
+  // Fill's binning of eight points with AVX2: per point its bin (~0 when not binned), its place in
+  // it and its range in centimetres, as Fill's scalar code writes them; lo and hi take the lowest
+  // and highest row binned.
+  void Bin8Avx2(const Vec3f* p, float min_range_m, float max_range_m, uint32_t* bins,
+                uint16_t* offsets, uint16_t* ranges_cm, int* lo, int* hi) const;
   float inv_bin_rad_;
   int na_, ne_;
   int first_row_ = 0, rows_ = 0;
@@ -208,7 +216,7 @@ class TransientFilter {
   // mapper marks them seen free in the global map (SubmapStore::ClearObserved). Each voxel once:
   // the buffer's points share them.
   std::vector<Int3> TakeOutsideCells();
-  size_t departed() const { return departed_.size() - departed_head_; }
+  size_t departed() const { return departed_count_; }
 
   const ClearedPoints& cleared() const { return cleared_; }
   ClearedPoints& cleared() { return cleared_; }
@@ -223,7 +231,7 @@ class TransientFilter {
                          std::mutex* aux_mu);
   // Returns how many departed points were seen through.
   int64_t JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame, const LocalMap& map,
-                        const std::function<bool(const Vec3f&)>& seen_through, WorkerPool* pool);
+                        const Eigen::Isometry3f& T_world_sensor, WorkerPool* pool);
 
   TransientConfig config_;
   RangeImage image_;  // this frame's scan
@@ -244,14 +252,20 @@ class TransientFilter {
   struct Departed {
     Vec3f p;
     int64_t frame;
-    int64_t voxel;  // packed finest voxel, one departed point per voxel
-    int turn;       // judged in frames with frame mod (2 · period_frames) equal to this
+    int64_t order;  // in the order they left
   };
-  std::vector<Departed> departed_;  // in the order they left, from departed_head_ on
-  size_t departed_head_ = 0;
-  std::vector<uint32_t> departed_turn_;  // this frame's turn: indices from the head
-  std::vector<uint8_t> departed_drop_;   // per index of the turn
-  absl::flat_hash_set<int64_t> departed_voxels_;
+  // The departed points by turn: those of turn t are judged in frames with frame mod
+  // (2 · period_frames) equal to t. Each list in the order they left, from its head on.
+  struct DepartedTurn {
+    std::vector<Departed> points;
+    size_t head = 0;
+    size_t size() const { return points.size() - head; }
+  };
+  std::vector<DepartedTurn> departed_;
+  size_t departed_count_ = 0;
+  int64_t departed_order_ = 0;
+  std::vector<uint8_t> departed_drop_;                          // per point of this frame's turn
+  std::vector<std::pair<int64_t, uint32_t>> departed_leaving_;  // this frame's: voxel, point
   std::vector<Int3> outside_cells_;
 };
 
