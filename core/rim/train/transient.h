@@ -252,7 +252,7 @@ class TransientFilter {
   struct Departed {
     Vec3f p;
     int64_t frame;
-    int64_t order;  // in the order they left
+    int64_t order;  // in the order they left (one frame's by voxel)
   };
   // The departed points by turn: those of turn t are judged in frames with frame mod
   // (2 · period_frames) equal to t. Each list in the order they left, from its head on.
@@ -266,6 +266,8 @@ class TransientFilter {
   int64_t departed_order_ = 0;
   std::vector<uint8_t> departed_drop_;                          // per point of this frame's turn
   std::vector<std::pair<int64_t, uint32_t>> departed_leaving_;  // this frame's: voxel, point
+  static constexpr int kFindPieces = 4;  // the search for leaving points, over the pool
+  std::vector<std::pair<int64_t, uint32_t>> departed_found_[kFindPieces];
   std::vector<Int3> outside_cells_;
 };
 
