@@ -492,10 +492,13 @@ void JudgeRange(const RangeImage& image, const TransientConfig& c, size_t begin,
 }
 
 // Calls judge(begin, end) on pieces that cover [0, n), over the pool when there are enough: a
-// judgement costs 0.1-1 µs, so a thousand of them outweigh waking the workers.
+// judgement costs 0.1-1 µs, so a thousand of them outweigh waking the workers. Pieces are handed
+// out as threads finish them, and judgements differ in cost by a factor of ten (a return found at
+// once, or a whole window and a plane fit): 32 pieces keep the threads finishing together, where
+// 8 left one idle for a while (the stage about 0.5 ms shorter on seed 724).
 void JudgeInPieces(size_t n, WorkerPool* pool,
                    const std::function<void(size_t begin, size_t end)>& judge) {
-  constexpr int kPieces = 8;
+  constexpr int kPieces = 32;
   auto piece = [&](int k) { judge(n * size_t(k) / kPieces, n * size_t(k + 1) / kPieces); };
   if (pool && n >= 1024) {
     pool->Run(kPieces, piece);
