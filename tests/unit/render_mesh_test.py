@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """clients/tools/render_mesh.py draws a mesh and, with --missing-in, marks and counts the faces
 that another mesh lacks: two squares of two faces each, one of them only in the first mesh,
-give 2 missing faces of 1 m² in all (at 1 m), drawn red, and an empty mesh lacks all 4; a bad distance or a missing file fails with the
-problem named.
+give 2 missing faces of 1 m² in all (at 1 m), drawn red, and an empty mesh lacks all 4; a bad
+distance or a missing file fails with the problem named.
 
 Usage: render_mesh_test.py RENDER_MESH_PY
 """
