@@ -3,6 +3,7 @@
 // generator state.
 #include "rim/train/point_buffer.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <map>
 #include <random>
@@ -179,6 +180,26 @@ TEST(PointBufferTest, FilterKeepsOrderAndPairs) {
   EXPECT_EQ(b.points(), expected);
   b.Filter(std::vector<bool>(b.size(), false));
   EXPECT_EQ(b.size(), 0u);
+}
+
+// Remove drops exactly the listed points (the first, the last, neighbours, a lone one), moving the
+// runs between them down with their origins, and counts the newest frame's that go.
+TEST(PointBufferTest, RemoveDropsTheListedPointsAndKeepsTheRest) {
+  PointBuffer b(Caps(1000, 1000), /*seed=*/7);
+  AddTestFrame(&b, 0, 20);
+  AddTestFrame(&b, 1, 10);  // the newest: indices 20-29
+  ASSERT_EQ(b.newest(), 10u);
+  const std::vector<Vec3f> before = b.points();
+  const std::vector<uint32_t> drop = {0, 5, 6, 7, 19, 20, 25, 29};
+  b.Remove(drop);
+  std::vector<Vec3f> expected;
+  for (uint32_t i = 0; i < before.size(); ++i)
+    if (std::find(drop.begin(), drop.end(), i) == drop.end()) expected.push_back(before[i]);
+  EXPECT_EQ(b.points(), expected);
+  EXPECT_EQ(b.newest(), 7u);  // 20, 25 and 29 were the newest frame's
+  ExpectConsistent(b);
+  b.Remove({});
+  EXPECT_EQ(b.points(), expected);
 }
 
 TEST(PointBufferTest, SerializeRoundTripIncludingRandomState) {

@@ -1,5 +1,6 @@
 #include "rim/train/point_buffer.h"
 
+#include <cstring>
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
@@ -64,25 +65,37 @@ void PointBuffer::TrimToBound() {
 
 void PointBuffer::RemoveOutside(const Vec3d& min_m, const Vec3d& max_m) {
   const Eigen::Array3f lo = min_m.cast<float>().array(), hi = max_m.cast<float>().array();
-  std::vector<bool> keep(points_.size());
+  std::vector<uint32_t> drop;
   for (size_t i = 0; i < points_.size(); ++i)
-    keep[i] = (points_[i].array() >= lo).all() && (points_[i].array() < hi).all();
-  Filter(keep);
+    if (!((points_[i].array() >= lo).all() && (points_[i].array() < hi).all()))
+      drop.push_back(uint32_t(i));
+  Remove(drop);
 }
 
 void PointBuffer::Filter(const std::vector<bool>& keep) {
-  // Points before the first dropped one stay where they are.
-  size_t out = 0;
-  while (out < points_.size() && keep[out]) ++out;
-  const size_t newest_from = points_.size() - newest_;
-  for (size_t i = out; i < points_.size(); ++i) {
-    if (!keep[i]) {
-      if (i >= newest_from) --newest_;
-      continue;
+  std::vector<uint32_t> drop;
+  for (size_t i = 0; i < points_.size(); ++i)
+    if (!keep[i]) drop.push_back(uint32_t(i));
+  Remove(drop);
+}
+
+void PointBuffer::Remove(const std::vector<uint32_t>& drop) {
+  static_assert(sizeof(Vec3f) == 3 * sizeof(float), "Vec3f is three packed floats");
+  if (drop.empty()) return;
+  // The points between two dropped ones move down as one run: a frame drops a few hundred of
+  // about a hundred thousand, and a copy per point (or a flag read per point) cost more than
+  // moving the runs. Points before the first dropped one stay where they are.
+  const size_t n = points_.size(), newest_from = n - newest_;
+  size_t out = drop[0];
+  for (size_t k = 0; k < drop.size(); ++k) {
+    if (drop[k] >= newest_from) --newest_;
+    const size_t begin = size_t(drop[k]) + 1, end = k + 1 < drop.size() ? drop[k + 1] : n;
+    if (end > begin) {
+      // Three packed floats a point (as Serialize reads them), moved down over themselves.
+      std::memmove(points_[out].data(), points_[begin].data(), (end - begin) * sizeof(Vec3f));
+      std::memmove(origins_[out].data(), origins_[begin].data(), (end - begin) * sizeof(Vec3f));
     }
-    points_[out] = points_[i];
-    origins_[out] = origins_[i];
-    ++out;
+    out += end - begin;
   }
   points_.resize(out);
   origins_.resize(out);

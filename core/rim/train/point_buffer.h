@@ -28,6 +28,8 @@ class PointBuffer {
   void RemoveOutside(const Vec3d& min_m, const Vec3d& max_m);
   // Drops points where keep[i] is false.
   void Filter(const std::vector<bool>& keep);
+  // Drops the points at these indices (increasing, each once, all below size()).
+  void Remove(const std::vector<uint32_t>& drop);
 
   size_t size() const { return points_.size(); }
   // The points the newest frame added are the last newest() of points(): every removal keeps the

@@ -131,6 +131,7 @@ class RangeImage {
   // frame's points are judged in random directions (a float image of every elevation was 1.6 MB,
   // and judging waited on memory).
   static constexpr uint16_t kEmpty = 0xffff;
+  static constexpr size_t kRowSlack = 8;  // bins kept past the last row (see Fill)
   // Place8 with AVX2 (only where the processor has it).
   void Place8Avx2(const Vec3f* p, float* range, float* azimuth, float* elevation) const;
   // Fill's binning of eight points with AVX2: per point its bin (~0 when not binned), its place in
@@ -156,6 +157,9 @@ bool SeenThrough(const RangeImage& image, const TransientConfig& config, const V
 // distance of it (something is there).
 enum class Verdict : uint8_t { kKept, kSomethingThere, kSeenThrough };
 Verdict Judge(const RangeImage& image, const TransientConfig& config, const Vec3f& p_S);
+// Judge with the window read one bin at a time whatever the processor: the reference that the
+// window read eight bins at a time (where the processor has AVX2) must equal.
+Verdict JudgeReference(const RangeImage& image, const TransientConfig& config, const Vec3f& p_S);
 
 // Where dropped returns stood, for a few frames: free-space samples there clear the network.
 class ClearedPoints {
@@ -268,6 +272,8 @@ class TransientFilter {
   std::vector<std::pair<int64_t, uint32_t>> departed_leaving_;  // this frame's: voxel, point
   static constexpr int kFindPieces = 4;  // the search for leaving points, over the pool
   std::vector<std::pair<int64_t, uint32_t>> departed_found_[kFindPieces];
+  std::vector<std::pair<int64_t, uint32_t>> departed_merge_;  // the first two merges
+
   std::vector<Int3> outside_cells_;
 };
 
