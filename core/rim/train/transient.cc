@@ -312,11 +312,8 @@ struct WindowQuery {
   bool empty_is_free;
 };
 
-// What reading the window found: a verdict when a bin decided it (a blocked bin: kept; a return
-// within `near` of p: something there; the first such bin in the window's order), else the sides
-// of p that returns (or, along fired rows, empty bins) lie on, whether all of them end beyond p,
-// and the sums of the plane fit: least squares of 1/range = t0 + t1·x + t2·y over the window's
-// returns, x and y their angular offsets from p in bins (azimuth scaled by cos(elevation)), in
+// The sums of the plane fit: least squares of 1/range = t0 + t1·x + t2·y over a window's returns,
+// x and y their angular offsets from the point in bins (azimuth scaled by cos(elevation)), in
 // double.
 struct PlaneSums {
   double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, sz = 0, sxz = 0, syz = 0, szz = 0;
@@ -334,6 +331,11 @@ struct PlaneSums {
     szz += z * z;
   }
 };
+
+// What reading the window found: a verdict when a bin decided it (a blocked bin: kept; a return
+// within `near` of p: something there; the first such bin in the window's order), else the sides
+// of p that returns (or, along fired rows, empty bins) lie on, whether all of them end beyond p,
+// and the plane's sums over its returns.
 struct WindowScan {
   bool decided = false;
   Verdict verdict = Verdict::kKept;
@@ -623,6 +625,7 @@ Verdict JudgePlaced(const RangeImage& image, const TransientConfig& c, const Vec
       return Verdict::kKept;
     }
   }
+  // The rest of the window: a deciding bin, or the sides, ends and plane sums of its returns.
   const WindowQuery q{r, fa, fe, cos_el, beyond, near2, bin_m2, a0, e0, wa, we, c.empty_is_free};
   WindowScan w;
 #ifdef RIM_TRANSIENT_AVX2
