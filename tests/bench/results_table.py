@@ -182,7 +182,13 @@ def _match(run, key, want):
 def fmt_range(values, digits=1, scale=1.0, suffix="", signed=False):
     lo, hi = min(values) * scale, max(values) * scale
     sign = "+" if signed else ""
-    a, b = f"{lo:{sign}.{digits}f}", f"{hi:{sign}.{digits}f}"
+
+    def one(v):
+        text = f"{v:{sign}.{digits}f}"
+        # A value that rounds to zero reads 0, whatever side of it it lay.
+        return text.lstrip("+-") if float(text) == 0 else text
+
+    a, b = one(lo), one(hi)
     return (a if a == b else f"{a} to {b}" if signed else f"{a}–{b}") + suffix
 
 
