@@ -346,15 +346,17 @@ struct WindowScan {
 // The k-th offset of the window's order from its centre: 0, −1, +1, −2, +2, ...
 inline int Outwards(int k) { return k & 1 ? -(k + 1) / 2 : k / 2; }
 
-// The window one bin at a time, from p's own bin outwards, row by row (0, −1, +1, ...) and so
-// within each row: a static point the scan sees has a return about its range at or next to its
-// own bin, and is let go after a look or two. The reference that ScanWindowAvx2 must equal.
-void ScanWindowScalar(const RangeImage& image, const WindowQuery& q, WindowScan* w) {
+// The window's first k_end rows one bin at a time, from p's own bin outwards, row by row (0, −1,
+// +1, ...) and so within each row: a static point the scan sees has a return about its range at
+// or next to its own bin, and is let go after a look or two. Adds to *sums_out; true when a bin
+// decided the verdict.
+bool ScanRowsScalar(const RangeImage& image, const WindowQuery& q, int k_end, WindowScan* w,
+                    PlaneSums* sums_out) {
   const int ne = image.elevation_bins(), na = image.azimuth_bins();
   const float empty_range = image.empty_range_m();
   const double* inv_range = InverseRanges();
-  PlaneSums sums;  // a local (stores through `w` could alias the inverse ranges), kept at the end
-  for (int k = 0; k <= 2 * q.we; ++k) {
+  PlaneSums sums = *sums_out;  // a local (stores through `w` could alias the inverse ranges)
+  for (int k = 0; k < k_end; ++k) {
     const int de = Outwards(k);
     const int e = q.e0 + de;
     if (e < 0 || e >= ne) continue;
@@ -372,7 +374,7 @@ void ScanWindowScalar(const RangeImage& image, const WindowQuery& q, WindowScan*
       if (cm == 0) {  // blocked near the sensor
         w->decided = true;
         w->verdict = Verdict::kKept;
-        return;
+        return true;
       }
       if (cm == RangeImage::empty_cm()) {
         // Nothing came back: evidence only along a row the sensor fired, and only for `all_beyond`.
@@ -394,7 +396,7 @@ void ScanWindowScalar(const RangeImage& image, const WindowQuery& q, WindowScan*
       if (q.bin_m2 * (x * x + y * y) + dr * dr < q.near2) {
         w->decided = true;
         w->verdict = Verdict::kSomethingThere;
-        return;
+        return true;
       }
       w->all_beyond &= v >= q.beyond;
       w->left |= x < 0.f;
@@ -404,7 +406,14 @@ void ScanWindowScalar(const RangeImage& image, const WindowQuery& q, WindowScan*
       sums.Add(x, y, inv_range[cm]);
     }
   }
-  w->sums = sums;
+  *sums_out = sums;
+  return false;
+}
+
+// The whole window that way: the reference that ScanWindowAvx2 must equal.
+void ScanWindowScalar(const RangeImage& image, const WindowQuery& q, WindowScan* w) {
+  PlaneSums sums;
+  if (!ScanRowsScalar(image, q, 2 * q.we + 1, w, &sums)) w->sums = sums;
 }
 
 #ifdef RIM_TRANSIENT_AVX2
@@ -429,6 +438,10 @@ __attribute__((target("avx2"))) void ScanWindowAvx2(const RangeImage& image, con
   const float empty_range = image.empty_range_m();
   const double* inv_range = InverseRanges();
   PlaneSums sums;  // a local (stores through `w` could alias the inverse ranges), kept at the end
+  // p's own row one bin at a time, as ScanWindowScalar reads it: most judgements that end early
+  // end there (a return at the point, or a blocked bin), after a bin or two, where a row of
+  // vectors would read them all.
+  if (ScanRowsScalar(image, q, 1, w, &sums)) return;
   const int a_left = q.a0 - q.wa;  // the unwrapped azimuth of the row's left end
   const bool wraps = a_left < 0 || a_left + n > na;
   const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
@@ -445,7 +458,7 @@ __attribute__((target("avx2"))) void ScanWindowAvx2(const RangeImage& image, con
   __m256 left = zero, right = zero, below = zero, above = zero, short_of = zero;
   bool empty_left = false, empty_right = false, empty_below = false, empty_above = false,
        empty_short = false;
-  for (int k = 0; k <= 2 * q.we; ++k) {
+  for (int k = 1; k <= 2 * q.we; ++k) {
     const int de = Outwards(k);
     const int e = q.e0 + de;
     if (e < 0 || e >= ne) continue;
@@ -543,11 +556,12 @@ __attribute__((target("avx2"))) void ScanWindowAvx2(const RangeImage& image, con
       sums.Add(xs[i], ys[i], inv_range[row_cms[i]]);
     }
   }
-  w->left = _mm256_movemask_ps(left) != 0 || empty_left;
-  w->right = _mm256_movemask_ps(right) != 0 || empty_right;
-  w->below = _mm256_movemask_ps(below) != 0 || empty_below;
-  w->above = _mm256_movemask_ps(above) != 0 || empty_above;
-  w->all_beyond = _mm256_movemask_ps(short_of) == 0 && !empty_short;
+  // With the own row's, which ScanRowsScalar left in *w.
+  w->left |= _mm256_movemask_ps(left) != 0 || empty_left;
+  w->right |= _mm256_movemask_ps(right) != 0 || empty_right;
+  w->below |= _mm256_movemask_ps(below) != 0 || empty_below;
+  w->above |= _mm256_movemask_ps(above) != 0 || empty_above;
+  w->all_beyond &= _mm256_movemask_ps(short_of) == 0 && !empty_short;
   w->sums = sums;
 }
 #endif
