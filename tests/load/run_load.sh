@@ -2,20 +2,64 @@
 # Starts rim_server on loopback and drives it with rim_load (ctest label `load`, not run by CI;
 # results go into BENCHMARK.md). Usage: run_load.sh BUILD_DIR [rim_load flags...]
 # RIM_SERVER_ARGS: extra rim_server flags (e.g. "--background-nice 0"), split on spaces.
+# The server's metrics are scraped every second while the load runs; at the end the script prints
+# what the load's dashboards cost (docs/service.md, "Sharing the cores"): the watchers' meshing CPU
+# (rim_meshing_cpu_seconds_total) and wall time (rim_meshing_seconds_sum) per integrated frame
+# (rim_scans_integrated_total), and their waits for the meshing budget, summed over the load's
+# sessions (rim_load's "load_" robots) as last scraped before they closed. RIM_METRICS_OUT names a
+# file for that scrape.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 shift
 WORK="$(mktemp -d)"
-trap 'kill -TERM "$PID" 2> /dev/null || true; wait "$PID" 2> /dev/null || true; rm -rf "$WORK"' EXIT
+SCRAPER=""
+trap '[ -n "$SCRAPER" ] && kill "$SCRAPER" 2> /dev/null; kill -TERM "$PID" 2> /dev/null || true; wait "$PID" 2> /dev/null || true; rm -rf "$WORK"' EXIT
 # shellcheck disable=SC2086
 "$BUILD/server/rim_server" --listen 127.0.0.1:0 --data-dir "$WORK/data" --checkpoint-every 0 \
-  ${RIM_SERVER_ARGS:-} > "$WORK/out" 2> "${RIM_SERVER_LOG:-$WORK/log}" &
+  --metrics 127.0.0.1:0 ${RIM_SERVER_ARGS:-} > "$WORK/out" 2> "${RIM_SERVER_LOG:-$WORK/log}" &
 PID=$!
+ADDR=""
+METRICS=""
 for _ in $(seq 1 600); do
   ADDR="$(sed -n 's/^rim_server listening on //p' "$WORK/out")"
-  [ -n "$ADDR" ] && break
+  METRICS="$(sed -n 's/^rim_server metrics on //p' "$WORK/out")"
+  [ -n "$ADDR" ] && [ -n "$METRICS" ] && break
   sleep 0.1
 done
 [ -n "$ADDR" ] || { cat "${RIM_SERVER_LOG:-$WORK/log}" >&2; exit 1; }
+# Keeps the newest scrape that holds the load's sessions: their families go when they close.
+(
+  while sleep 1; do
+    python3 -c 'import sys, urllib.request; open(sys.argv[2], "wb").write(
+        urllib.request.urlopen(sys.argv[1], timeout=5).read())' "$METRICS" "$WORK/scrape" \
+      2> /dev/null || continue
+    grep -q 'session="load_' "$WORK/scrape" && mv "$WORK/scrape" "$WORK/last_scrape"
+  done
+) &
+SCRAPER=$!
 /usr/bin/time -f "rim_load wall %e s" "$BUILD/tests/rim_load" --server "$ADDR" "$@"
+kill "$SCRAPER" 2> /dev/null || true
+SCRAPER=""
 grep -E "^VmHWM|^VmRSS" "/proc/$PID/status" | sed 's/^/rim_server /'
+if [ -f "$WORK/last_scrape" ]; then
+  [ -n "${RIM_METRICS_OUT:-}" ] && cp "$WORK/last_scrape" "$RIM_METRICS_OUT"
+  python3 - "$WORK/last_scrape" <<'PY'
+import re, sys
+
+sums = {}
+for line in open(sys.argv[1]):
+    m = re.match(r'^(rim_[a-z_]+)\{[^}]*session="(load_[^"]*)"[^}]*\} (\S+)$', line)
+    if m and m.group(1) in ("rim_scans_integrated_total", "rim_meshing_cpu_seconds_total",
+                            "rim_meshing_seconds_sum", "rim_meshing_seconds_count",
+                            "rim_meshing_budget_wait_seconds_total"):
+        sums[m.group(1)] = sums.get(m.group(1), 0.0) + float(m.group(3))
+frames = sums.get("rim_scans_integrated_total", 0.0)
+if frames > 0:
+    print("watchers: meshing CPU %.1f ms per integrated frame, wall %.1f ms (%d tiles over %d "
+          "frames), waited for the budget %.1f s"
+          % (1e3 * sums.get("rim_meshing_cpu_seconds_total", 0.0) / frames,
+             1e3 * sums.get("rim_meshing_seconds_sum", 0.0) / frames,
+             sums.get("rim_meshing_seconds_count", 0.0), frames,
+             sums.get("rim_meshing_budget_wait_seconds_total", 0.0)))
+PY
+fi

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "rim/base/types.h"
+#include "rim/map/local_map.h"
 #include "rim/map/map_geometry.h"
 #include "rim/mesh/mesher.h"
 #include "rim/model/encoder.h"
@@ -43,7 +44,8 @@ struct BlockScratch {
 // point alone, so blocks and tiles that share a point compute the same bits for it.
 class GridEncoder {
  public:
-  GridEncoder(const MapGeometry& geo, GridSpec spec, const Int3& point0, int n,
+  // `map` is the live map that `reader` reads first.
+  GridEncoder(const MapGeometry& geo, GridSpec spec, const Int3& point0, int n, const LocalMap& map,
               FeatureReader& reader, BlockScratch& scratch)
       : L_(geo.levels()), D_(geo.feature_dim()), reader_(reader) {
     const int mult = spec.s;
@@ -55,11 +57,25 @@ class GridEncoder {
       // from the map. Each such row serves one point, so the block's row cache would only copy.
       lv.aligned = mult % lv.scale == 0;
       if (lv.aligned) {
+        // Per axis, also where the lattice index lies in the live map's storage and whether it
+        // lies in its box: a point's row in the box is found without LocalMap::Slot's modulos,
+        // and can be asked for ahead of its point (FeatureReader::Get's rows, the same pointers).
+        const IntBox box = map.placed() ? map.LatticeBox(l) : IntBox{Int3::Ones(), Int3::Zero()};
+        const Int3& d = map.level(l).dims;
+        const int64_t stride[3] = {int64_t(d.y()) * d.z(), int64_t(d.z()), 1};
         for (int a = 0; a < 3; ++a) {
           lv.lattice[a].resize(size_t(n));
-          for (int t = 0; t < n; ++t)
-            lv.lattice[a][size_t(t)] = (point0[a] + t) * (mult / lv.scale);
+          lv.slot_part[a].resize(size_t(n));
+          lv.in_box[a].resize(size_t(n));
+          for (int t = 0; t < n; ++t) {
+            const int g = (point0[a] + t) * (mult / lv.scale);
+            lv.lattice[a][size_t(t)] = g;
+            lv.in_box[a][size_t(t)] = g >= box.lo[a] && g <= box.hi[a];
+            lv.slot_part[a][size_t(t)] = d[a] > 0 ? PosMod(g, d[a]) * stride[a] : 0;
+          }
         }
+        lv.features = map.placed() ? map.level(l).features(0) : nullptr;
+        any_aligned_ = true;
         continue;
       }
       lv.lo = FloorDiv(Int3(point0 * mult), Int3::Constant(lv.scale));
@@ -127,6 +143,11 @@ class GridEncoder {
     size_t corner_offset[8];      // row-index offset of corner (cx, cy, cz) = c from the cell
     bool aligned = false;         // every grid point on a lattice point: no row cache
     std::vector<int> lattice[3];  // aligned: per axis and block-local coordinate, the lattice index
+    // aligned: per axis and block-local coordinate, its part of the live map's slot and whether it
+    // lies in the box; the live map's rows from slot 0 (null: no box)
+    std::vector<int64_t> slot_part[3];
+    std::vector<uint8_t> in_box[3];
+    const float* features = nullptr;
   };
 
 #ifdef RIM_MESH_AVX2
@@ -135,7 +156,10 @@ class GridEncoder {
   // bit mask, so the sums are the same as the generic loop's.
   __attribute__((target("avx2"))) void EncodeAvx2(const std::vector<Int3>& points, float* out) {
     alignas(32) float w[8];
-    for (const Int3& m : points) {
+    for (size_t i = 0; i < points.size(); ++i) {
+      const Int3& m = points[i];
+      if (any_aligned_ && i + kPrefetchPoints < points.size())
+        PrefetchAligned(points[i + kPrefetchPoints]);
       for (int l = 0; l < L_; ++l, out += 8) {
         Level& lv = levels_[l];
         if (lv.aligned) {
@@ -203,9 +227,25 @@ class GridEncoder {
 
   // An aligned level's row at grid point m (valid until the reader's next Get).
   const float* LatticeRow(int l, const Level& lv, const Int3& m) {
+    if (const float* row = BoxRow(lv, m)) return row;
     return reader_.Get(l, Int3(lv.lattice[0][size_t(m.x())], lv.lattice[1][size_t(m.y())],
                                lv.lattice[2][size_t(m.z())]));
   }
+  // An aligned level's row at grid point m in the live map's box, or null outside it.
+  const float* BoxRow(const Level& lv, const Int3& m) const {
+    const size_t x = size_t(m.x()), y = size_t(m.y()), z = size_t(m.z());
+    if (!(lv.in_box[0][x] & lv.in_box[1][y] & lv.in_box[2][z])) return nullptr;
+    return lv.features + (lv.slot_part[0][x] + lv.slot_part[1][y] + lv.slot_part[2][z]) * D_;
+  }
+  // Starts loading the aligned levels' rows of a point read soon: grid points lie apart in the
+  // map's storage (at 0.2 m each row a cache line of its own), and reading them one after another
+  // waited on memory more than the levels' sums took.
+  void PrefetchAligned(const Int3& m) const {
+    for (int l = 0; l < L_; ++l)
+      if (levels_[l].aligned)
+        if (const float* row = BoxRow(levels_[l], m)) __builtin_prefetch(row);
+  }
+  static constexpr size_t kPrefetchPoints = 16;
 
   const float* Row(Level& lv, size_t i) {
     float* row = lv.rows + i * D_;
@@ -220,6 +260,7 @@ class GridEncoder {
   }
 
   const int L_, D_;
+  bool any_aligned_ = false;  // a level read straight from the map (a coarse grid)
   FeatureReader& reader_;
   Level levels_[kMaxLevels];
 };

@@ -46,18 +46,96 @@ bool KeyLess(const Int3& a, const Int3& b) {
   return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
 }
 
-// A tile's observed voxels grouped by mesh block (blocks in key order).
+// Calls fn(g) for each observed finest voxel g of tile `key` (ObservedVoxels: the same voxels in
+// the same order).
+template <class Fn>
+void VisitObservedVoxels(const MeshTileSource& src, const Int3& key, Fn&& fn) {
+  const MapGeometry& geo = src.geometry;
+  const Int3 cells = geo.cells(0);
+  const Int3 tile_lo = key.cwiseProduct(cells), tile_hi = tile_lo + cells - Int3::Ones();
+  const LocalMap& map = src.local_map;
+  // The live map is authoritative for every lattice point of the box, lo..hi inclusive: a cell's
+  // flags live at its minimum corner, and a point of the box's max face keeps in the live map
+  // what it was given while it was inside the box (the store gets it only when it leaves). Taking
+  // the cells at hi from the store dropped them from the mesh along the faces of the last box,
+  // though queries reported them observed.
+  const IntBox box = map.LatticeBox(0);
+  for (const Int3& g : src.store.ObservedCells(key))
+    if (!map.placed() || !box.Contains(g)) fn(g);
+  if (map.placed()) {
+    const Int3 lo = box.lo.cwiseMax(tile_lo);
+    const Int3 hi = box.hi.cwiseMin(tile_hi);
+    const LocalMap::Level& grid = map.level(0);
+    // Slots wrap per axis (LocalMap::Slot): a z run is contiguous in storage up to its wrap.
+    const Int3& dims = grid.dims;
+    for (int x = lo.x(); x <= hi.x(); ++x)
+      for (int y = lo.y(); y <= hi.y(); ++y) {
+        const int64_t row = map.Slot(0, Int3(x, y, lo.z())) - PosMod(lo.z(), dims.z());
+        int sz = PosMod(lo.z(), dims.z());
+        for (int z = lo.z(); z <= hi.z(); ++z) {
+          if (grid.flags_shared(row + sz) & LocalMap::kObserved) fn(Int3(x, y, z));
+          if (++sz == dims.z()) sz = 0;
+        }
+      }
+  }
+}
+
+// A tile's observed voxels grouped by mesh block (blocks in key order, each block's voxels in key
+// order). Above the leaf (s > 1 finest voxels a cell edge), each block's coarse cells instead:
+// those holding at least kCoarseShare of their s³ finest voxels observed, in key order (a block
+// with observed voxels and no such cell is listed, empty).
 struct TileVoxels {
   std::vector<std::pair<Int3, std::vector<Int3>>> blocks;
 };
 
-TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key) {
+// The coarse cells (s > 1) of a tile's observed voxels, counted in a dense array per block (at most
+// 8³ cells): a count is an increment where hashing each voxel's block and then its cell, and
+// sorting each block's voxels, was a third of meshing a 0.2 m tile. Reading the arrays in order
+// gives the cells in key order: the same lists as counting in hash maps and sorting. (At the finest
+// level, 16³-voxel arrays cost a little more than grouping by hash.)
+TileVoxels CoarseTileCells(const MeshTileSource& src, const Int3& key, int s) {
+  const int per = kMeshBlockVoxels / s;  // cells a block edge
+  const size_t cells = size_t(per) * per * per;
+  const int need = std::max(1, int(std::ceil(kCoarseShare * s * s * s)));
+  absl::flat_hash_map<Int3, uint32_t, Int3Hash, Int3Equal> index;  // block -> its counts
+  std::vector<std::pair<Int3, std::vector<uint16_t>>> counts;
+  Int3 last(0, 0, 0);
+  uint16_t* at = nullptr;  // the last voxel's block's counts: a z run stays in one block
+  VisitObservedVoxels(src, key, [&](const Int3& g) {
+    const Int3 b = FloorDiv(g, Int3::Constant(kMeshBlockVoxels));
+    if (at == nullptr || b != last) {
+      auto [it, inserted] = index.try_emplace(b, uint32_t(counts.size()));
+      if (inserted) counts.emplace_back(b, std::vector<uint16_t>(cells, 0));
+      at = counts[it->second].second.data();
+      last = b;
+    }
+    const Int3 c = (g - b * kMeshBlockVoxels) / s;  // in [0, per) on each axis
+    ++at[(size_t(c.x()) * per + c.y()) * per + c.z()];
+  });
+  std::sort(counts.begin(), counts.end(),
+            [](const auto& a, const auto& b) { return KeyLess(a.first, b.first); });
+  TileVoxels out;
+  out.blocks.reserve(counts.size());
+  for (const auto& [b, n] : counts) {
+    std::vector<Int3> kept;
+    const Int3 c0 = b * per;
+    for (int x = 0; x < per; ++x)
+      for (int y = 0; y < per; ++y)
+        for (int z = 0; z < per; ++z)
+          if (n[(size_t(x) * per + y) * per + z] >= need) kept.push_back(c0 + Int3(x, y, z));
+    out.blocks.emplace_back(b, std::move(kept));
+  }
+  return out;
+}
+
+TileVoxels CollectTileVoxels(const MeshTileSource& src, const Int3& key, int s) {
+  std::shared_lock lock(src.mutex);
+  if (s > 1) return CoarseTileCells(src, key, s);
   TileVoxels out;
   absl::flat_hash_map<Int3, std::vector<Int3>, Int3Hash, Int3Equal> by_block;
-  std::shared_lock lock(src.mutex);
-  for (const Int3& g : ObservedVoxels(src, key)) {
+  VisitObservedVoxels(src, key, [&by_block](const Int3& g) {
     by_block[FloorDiv(g, Int3::Constant(kMeshBlockVoxels))].push_back(g);
-  }
+  });
   out.blocks.reserve(by_block.size());
   for (auto& [block, voxels] : by_block) {
     // Voxels in key order: a block's grid points come in an order fixed by its voxels alone, so
@@ -86,7 +164,8 @@ uint64_t HashVoxels(const std::vector<Int3>& voxels) {
 // scratch table while the grid lives) and the SDF at them.
 class BlockGrid {
  public:
-  // Evaluates the block's grid. Caller holds the shared lock.
+  // Evaluates the block's grid: `voxels` are its observed voxels, or above the leaf its coarse
+  // cells (CollectTileVoxels). Caller holds the shared lock.
   BlockGrid(const MeshTileSource& src, GridSpec spec, const Int3& block,
             const std::vector<Int3>& voxels, FeatureReader& reader, BlockScratch& scratch)
       : n_(spec.CellsPerBlock() + 1), point0_(block * spec.CellsPerBlock()), scratch_(scratch) {
@@ -99,7 +178,7 @@ class BlockGrid {
     std::vector<int32_t>& point_index = scratch.point_index;
     if (point_index.size() != size_t(n_) * n_ * n_) point_index.assign(size_t(n_) * n_ * n_, -1);
     if (spec.s > 1) {
-      CoarseCells(spec.s, voxels);
+      CoarseCells(voxels);
     } else {
       FineCells(r, voxel0, voxels);
       layout_hash_ = HashVoxels(voxels);
@@ -108,7 +187,7 @@ class BlockGrid {
     const int F = src.geometry.encoding_dim();
     if (scratch.features.size() < points_.size() * F) scratch.features.resize(points_.size() * F);
     values_.resize(points_.size());
-    GridEncoder encoder(src.geometry, spec, point0_, n_, reader, scratch);
+    GridEncoder encoder(src.geometry, spec, point0_, n_, src.local_map, reader, scratch);
     encoder.EncodeAll(points_, scratch.features.data());
     src.decoder.Forward(scratch.features.data(), int(points_.size()), values_.data());
   }
@@ -186,18 +265,10 @@ class BlockGrid {
     }
   }
 
-  // Coarse cells of s finest voxels per edge: a cell is meshed when at least kCoarseShare of its
-  // finest voxels are observed, so that a coarse tile covers what the fine one does without
-  // reaching far into voxels no ray constrained.
-  void CoarseCells(int s, const std::vector<Int3>& voxels) {
-    absl::flat_hash_map<Int3, int, Int3Hash, Int3Equal> count;
-    for (const Int3& g : voxels) ++count[FloorDiv(g, Int3::Constant(s))];
-    const int need = std::max(1, int(std::ceil(kCoarseShare * s * s * s)));
-    std::vector<Int3> cells;
-    for (const auto& [c, k] : count)
-      if (k >= need) cells.push_back(c);
-    // In key order: the grid points' order follows the cells alone.
-    std::sort(cells.begin(), cells.end(), KeyLess);
+  // Coarse cells of s finest voxels per edge, in key order: a cell is meshed when at least
+  // kCoarseShare of its finest voxels are observed (CoarseTileCells counts them), so that a coarse
+  // tile covers what the fine one does without reaching far into voxels no ray constrained.
+  void CoarseCells(const std::vector<Int3>& cells) {
     layout_hash_ = HashVoxels(cells);
     cells_.reserve(cells.size());
     for (const Int3& c : cells) {
@@ -280,7 +351,7 @@ absl::StatusOr<Mesh> MeshTileBlocks(
   if (!spec.ok()) return spec.status();
   const double step = geo.leaf_m() * spec->s / spec->r;
   const uint64_t stamp = log ? log->Stamp() : 0;
-  const TileVoxels voxels = CollectTileVoxels(src, key);
+  const TileVoxels voxels = CollectTileVoxels(src, key, spec->s);
   // A feature row of level l at lattice point p reaches grid points within 2^l finest voxels of
   // p, and an observed flag reaches one voxel: a block depends on the changes within this reach.
   const int reach = (1 << (geo.levels() - 1)) + 1;
@@ -366,35 +437,8 @@ absl::StatusOr<std::pair<int, int>> MeshGridOf(const MapGeometry& geo, float res
 }
 
 std::vector<Int3> ObservedVoxels(const MeshTileSource& src, const Int3& key) {
-  const MapGeometry& geo = src.geometry;
-  const Int3 cells = geo.cells(0);
-  const Int3 tile_lo = key.cwiseProduct(cells), tile_hi = tile_lo + cells - Int3::Ones();
   std::vector<Int3> out;
-  const LocalMap& map = src.local_map;
-  // The live map is authoritative for every lattice point of the box, lo..hi inclusive: a cell's
-  // flags live at its minimum corner, and a point of the box's max face keeps in the live map
-  // what it was given while it was inside the box (the store gets it only when it leaves). Taking
-  // the cells at hi from the store dropped them from the mesh along the faces of the last box,
-  // though queries reported them observed.
-  const IntBox box = map.LatticeBox(0);
-  for (const Int3& g : src.store.ObservedCells(key))
-    if (!map.placed() || !box.Contains(g)) out.push_back(g);
-  if (map.placed()) {
-    const Int3 lo = box.lo.cwiseMax(tile_lo);
-    const Int3 hi = box.hi.cwiseMin(tile_hi);
-    const LocalMap::Level& grid = map.level(0);
-    // Slots wrap per axis (LocalMap::Slot): a z run is contiguous in storage up to its wrap.
-    const Int3& dims = grid.dims;
-    for (int x = lo.x(); x <= hi.x(); ++x)
-      for (int y = lo.y(); y <= hi.y(); ++y) {
-        const int64_t row = map.Slot(0, Int3(x, y, lo.z())) - PosMod(lo.z(), dims.z());
-        int sz = PosMod(lo.z(), dims.z());
-        for (int z = lo.z(); z <= hi.z(); ++z) {
-          if (grid.flags_shared(row + sz) & LocalMap::kObserved) out.emplace_back(x, y, z);
-          if (++sz == dims.z()) sz = 0;
-        }
-      }
-  }
+  VisitObservedVoxels(src, key, [&out](const Int3& g) { out.push_back(g); });
   return out;
 }
 
