@@ -181,7 +181,7 @@ constexpr Setting kSettings[] = {
      "0-19, default 5: training and meshing yield the cores to queries"},
     {"meshing-cores", false, "F",
      "CPU-seconds per second all watchers' meshing may use (default a\n"
-     "quarter of the cores, 0 = no budget)"},
+     "tenth of the cores, 0 = no budget)"},
     {"tokens", false, "FILE", "`ROLE SUBJECT SHA256HEX` lines; callers must present a token"},
     {"tls-cert", false, "FILE", "PEM certificate chain: serve TLS (with --tls-key)"},
     {"tls-key", false, "FILE", "PEM private key of --tls-cert"},

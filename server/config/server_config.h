@@ -57,7 +57,7 @@ struct ServerConfig {
   // "Sharing the cores"). 0: all equal.
   int background_nice = 5;
   // CPU-seconds per second that all watchers' meshing may use together (MeshingBudget); 0: no
-  // budget; below 0 (the default): a quarter of the machine's cores (DefaultMeshingCores).
+  // budget; below 0 (the default): a tenth of the machine's cores (DefaultMeshingCores).
   double meshing_cores = -1;
 
   // Every field as `key = value` lines.

@@ -36,7 +36,7 @@ void MeshingBudget::Charge(double cpu_s, Clock::time_point now) {
   credit_ -= cpu_s;
 }
 
-double DefaultMeshingCores(unsigned cores) { return std::max(1u, cores) / 4.0; }
+double DefaultMeshingCores(unsigned cores) { return std::max(1u, cores) / 10.0; }
 
 double ThreadCpuSeconds() {
   timespec ts{};

@@ -41,9 +41,11 @@ class MeshingBudget {
   Clock::time_point last_;
 };
 
-// The default budget for a machine with `cores` hardware threads: a quarter of them (0.5 on a
-// 2-core box, where it keeps tiles within about a second of their frame at the target load:
-// BENCHMARK.md), at least a quarter of one.
+// The default budget for a machine with `cores` hardware threads: a tenth of them (0.2 on a
+// 2-core box), at least a tenth of one. A dashboard at its default level (0.2 m) takes about 0.07
+// cores there and is never held back; one at the finest level (5 cm) wants 0.4 and more, and a
+// quarter of the cores let it starve the robot's training to its floor (docs/service.md, "Sharing
+// the cores"; BENCHMARK.md, "Load").
 double DefaultMeshingCores(unsigned cores);
 
 // CPU time the calling thread has used, in seconds.
