@@ -334,24 +334,37 @@ REFERENCE = "2026-11-22-reference-trainer.json"
 PROBE = "2026-11-26-planner-probe.json"
 LOAD = "2026-11-27-load.json"
 LOAD_LEVELS = "2026-11-27-load-levels.json"
+LOAD_BUDGET = "2026-12-01-load-budget.json"
+BUDGET_BUILD = "81d12d6"  # the meshing budget's default at a tenth of the cores
 
 
-def load_percent(results, resolution_m):
+def load_percent(results, resolution_m, build=BUDGET_BUILD, cores=None):
     """rim_load --baseline: rays trained per frame period under load, % of the robot alone, with
-    the dashboard watching at RESOLUTION_M."""
-    return [float(r["percent"]) for r in results.runs(LOAD_LEVELS)
-            if r["options"].get("tile_resolution_m") == resolution_m]
+    the dashboard watching at RESOLUTION_M, on BUILD (with the budget at CORES when given)."""
+    return [float(r["percent"]) for r in results.runs(LOAD_BUDGET)
+            if "options" in r and r["options"].get("tile_resolution_m") == resolution_m
+            and r["options"].get("build") == build
+            and (cores is None or r["options"].get("meshing_cores") == cores)]
+
+
+def watcher_ms(results, resolution_m, build=BUDGET_BUILD, cores=None):
+    """The load's watchers: meshing CPU per integrated frame, from the server's metrics."""
+    return [float(r["meshing_cpu_ms_per_frame"]) for r in results.runs(LOAD_BUDGET)
+            if r.get("watchers") and r["tile_resolution_m"] == resolution_m
+            and r["build"] == build and (cores is None or r["meshing_cores"] == cores)]
 MESHING = "2026-11-25-meshing.json"
-LEVELS = ["2026-11-27-levels-s67.json", "2026-11-27-levels-s71.json"]
+LEVELS = ["2026-12-01-levels-s744.json", "2026-12-01-levels-s745.json"]
+LEVELS_AFTER, LEVELS_BEFORE = "49d18dc", "5a02c04"
 LEVEL_RUN = "MeshUpdate/incremental:1/frames_per_push:10/remesh_tolerance_mm:5/level_cm:"
 
 
-def level_push_ms(results, level_cm):
-    """Meshing and Draco per frame of a watcher at LEVEL_CM, one value per seed."""
+def level_push_ms(results, level_cm, build=LEVELS_AFTER):
+    """Meshing and Draco per frame of a watcher at LEVEL_CM, one value per seed and round."""
     out = []
     for name in LEVELS:
-        mesh = results.values(name, "mesh_ms_per_frame", benchmark=LEVEL_RUN + str(level_cm))
-        draco = results.values(name, "encode_ms_per_frame", benchmark=LEVEL_RUN + str(level_cm))
+        where = {"benchmark": LEVEL_RUN + str(level_cm), "build": build}
+        mesh = results.values(name, "mesh_ms_per_frame", **where)
+        draco = results.values(name, "encode_ms_per_frame", **where)
         out += [m + d for m, d in zip(mesh, draco)]
     return out
 
@@ -360,8 +373,10 @@ def level_bytes_share(results, level_cm):
     """Draco bytes per pushed tile at LEVEL_CM over the finest level's, one value per seed."""
     out = []
     for name in LEVELS:
-        coarse = results.values(name, "bytes_per_tile", benchmark=LEVEL_RUN + str(level_cm))
-        fine = results.values(name, "bytes_per_tile", benchmark=LEVEL_RUN + "0")
+        where = {"build": LEVELS_AFTER}
+        coarse = results.values(name, "bytes_per_tile", benchmark=LEVEL_RUN + str(level_cm),
+                                **where)
+        fine = results.values(name, "bytes_per_tile", benchmark=LEVEL_RUN + "0", **where)
         out += [c / f for c, f in zip(coarse, fine)]
     return out
 BASELINE = "2026-11-22-default.json"
@@ -449,13 +464,28 @@ TABLES = {
     "load": [
         Row("target load, the dashboard at 0.2 m (its default): rays trained per frame period, % "
             "of the robot alone in the same run", lambda r: load_percent(r, 0.2), {"digits": 0},
-            "–", ("≥ 80", (">=", 80)), [LOAD_LEVELS]),
+            lambda r: "meshing budget 0.5 (the default before): " + fmt_range(
+                load_percent(r, 0.2, "5a02c04", 0.5), digits=0),
+            ("≥ 80", (">=", 80)), [LOAD_BUDGET]),
         Row("the same, the dashboard at the finest level (5 cm)", lambda r: load_percent(r, 0.0),
-            {"digits": 0}, "–", ("≥ 80", (">=", 80)), [LOAD_LEVELS]),
+            {"digits": 0},
+            lambda r: "meshing budget 0.5 (the default before): " + fmt_range(
+                load_percent(r, 0.0, "5a02c04", 0.5), digits=0),
+            ("≥ 80", (">=", 80)), [LOAD_BUDGET]),
+        Row("target load through `rim_server`, a watcher at the finest level (5 cm): its meshing "
+            "and Draco CPU per integrated frame, ms", lambda r: watcher_ms(r, 0.0), F1,
+            lambda r: "meshing budget 0.5 (the default before): " + fmt_range(
+                watcher_ms(r, 0.0, "5a02c04", 0.5), digits=1),
+            ("≤ 20", ("<=", 20)), [LOAD_BUDGET]),
+        Row("the same, a watcher at 0.2 m", lambda r: watcher_ms(r, 0.2), F1,
+            lambda r: "the build before (budget 0.5 or 0.2): " + fmt_range(
+                watcher_ms(r, 0.2, "5a02c04"), digits=1),
+            ("≤ 5", ("<=", 5)), [LOAD_BUDGET]),
         Row("target load, the dashboard at 0.2 m: robot integrates, frames/s",
-            lambda r: [x["load"]["frames_per_s"] for x in r.runs(LOAD_LEVELS)
-                       if x["options"]["tile_resolution_m"] == 0.2], F2,
-            "the robot's rate: 10", ("≥ 9.5", (">=", 9.5)), [LOAD_LEVELS]),
+            lambda r: [x["load"]["frames_per_s"] for x in r.runs(LOAD_BUDGET)
+                       if "options" in x and x["options"]["tile_resolution_m"] == 0.2
+                       and x["options"].get("build") == BUDGET_BUILD], F2,
+            "the robot's rate: 10", ("≥ 9.5", (">=", 9.5)), [LOAD_BUDGET]),
         Row("target load: robot integrates, frames/s",
             lambda r: r.values(LOAD, "frames_per_s", load="target"), F2,
             "the robot's rate: 10", ("≥ 9.5", (">=", 9.5)), [LOAD]),
@@ -494,10 +524,15 @@ TABLES = {
     ],
     "meshing": [
         Row("a watcher at the finest level (5 cm), push every 10 frames: meshing and Draco, ms a "
-            "frame", lambda r: level_push_ms(r, 0), F1, "–", ("≤ 20", ("<=", 20)), LEVELS),
-        Row("the same at 0.1 m", lambda r: level_push_ms(r, 10), F1, "–", None, LEVELS),
-        Row("the same at 0.2 m", lambda r: level_push_ms(r, 20), F1, "–", ("≤ 5", ("<=", 5)),
-            LEVELS),
+            "frame", lambda r: level_push_ms(r, 0), F1,
+            lambda r: "the build before: " + fmt_range(level_push_ms(r, 0, LEVELS_BEFORE)),
+            ("≤ 20", ("<=", 20)), LEVELS),
+        Row("the same at 0.1 m", lambda r: level_push_ms(r, 10), F1,
+            lambda r: "the build before: " + fmt_range(level_push_ms(r, 10, LEVELS_BEFORE)),
+            None, LEVELS),
+        Row("the same at 0.2 m", lambda r: level_push_ms(r, 20), F1,
+            lambda r: "the build before: " + fmt_range(level_push_ms(r, 20, LEVELS_BEFORE)),
+            ("≤ 5", ("<=", 5)), LEVELS),
         Row("Draco bytes of a pushed tile at 0.2 m, share of the 5 cm tile's",
             lambda r: level_bytes_share(r, 20), F2, "–", ("≤ 0.33", ("<=", 0.33)), LEVELS),
         Row("a tile re-encoded (its changed blocks meshed, then Draco), ms",
