@@ -66,16 +66,39 @@ void VisitObservedVoxels(const MeshTileSource& src, const Int3& key, Fn&& fn) {
     const Int3 lo = box.lo.cwiseMax(tile_lo);
     const Int3 hi = box.hi.cwiseMin(tile_hi);
     const LocalMap::Level& grid = map.level(0);
-    // Slots wrap per axis (LocalMap::Slot): a z run is contiguous in storage up to its wrap.
+    // Slots wrap per axis (LocalMap::Slot): a z run is contiguous in storage up to its wrap, so a
+    // column is at most two runs. A run is read eight flags at a time: most voxels of a box are
+    // not observed, and one flag at a time this scan was most of listing a coarse tile (and of a
+    // distance refresh's listing). The loads are atomic, as flags_shared's (a frame's marking
+    // sets bits beside readers); the voxels come in the same order.
     const Int3& dims = grid.dims;
-    for (int x = lo.x(); x <= hi.x(); ++x)
+    const uint8_t* flags = grid.flag_data();
+    using Word = uint64_t __attribute__((may_alias));
+    constexpr uint64_t kObservedBytes = 0x0101010101010101ull * LocalMap::kObserved;
+    static_assert(LocalMap::kObserved == 1, "one bit a byte: a set bit is a byte's flag");
+    auto run = [&](int x, int y, int z0, int64_t first, int64_t count) {
+      int64_t i = first;
+      const int64_t end = first + count;
+      auto one = [&](int64_t k) {
+        if (__atomic_load_n(flags + k, __ATOMIC_RELAXED) & LocalMap::kObserved)
+          fn(Int3(x, y, z0 + int(k - first)));
+      };
+      for (; i < end && (reinterpret_cast<uintptr_t>(flags + i) & 7) != 0; ++i) one(i);
+      for (; i + 8 <= end; i += 8) {
+        uint64_t w = __atomic_load_n(reinterpret_cast<const Word*>(flags + i), __ATOMIC_RELAXED) &
+                     kObservedBytes;
+        for (; w != 0; w &= w - 1) fn(Int3(x, y, z0 + int(i - first) + (__builtin_ctzll(w) >> 3)));
+      }
+      for (; i < end; ++i) one(i);
+    };
+    const int nz = hi.z() - lo.z() + 1;
+    const int sz0 = PosMod(lo.z(), dims.z());
+    const int first_run = std::min(nz, dims.z() - sz0);
+    for (int x = lo.x(); x <= hi.x() && nz > 0; ++x)
       for (int y = lo.y(); y <= hi.y(); ++y) {
-        const int64_t row = map.Slot(0, Int3(x, y, lo.z())) - PosMod(lo.z(), dims.z());
-        int sz = PosMod(lo.z(), dims.z());
-        for (int z = lo.z(); z <= hi.z(); ++z) {
-          if (grid.flags_shared(row + sz) & LocalMap::kObserved) fn(Int3(x, y, z));
-          if (++sz == dims.z()) sz = 0;
-        }
+        const int64_t column = map.Slot(0, Int3(x, y, lo.z())) - sz0;
+        run(x, y, lo.z(), column + sz0, first_run);
+        if (first_run < nz) run(x, y, lo.z() + first_run, column, nz - first_run);
       }
   }
 }
