@@ -3,12 +3,82 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <tuple>
+#include <vector>
+
 #include "rim/config/config.h"
+#include "rim/mesh/grid_encoder.h"
 
 namespace rim {
 namespace {
 
 IntBox Box(int lo, int hi) { return {Int3::Constant(lo), Int3::Constant(hi)}; }
+
+// Coarse cells counted densely per block (what a coarse tile meshes) are the cells a hash map of
+// counts gives, block by block, both in key order: random voxels, in random order, over blocks on
+// both sides of zero, at every coarse step a block allows.
+TEST(CoarseCellsTest, DenseCountsPerBlockGiveTheCellsOfCountingInAMap) {
+  std::mt19937 rng(7);
+  using Key = std::tuple<int, int, int>;
+  auto key = [](const Int3& g) { return Key(g.x(), g.y(), g.z()); };
+  for (int s : {2, 4, 8, 16}) {
+    std::set<Key> unique;
+    std::vector<Int3> voxels;
+    // Half-filled boxes wide enough to hold whole cells (cells over the share) and scattered
+    // voxels (cells under it).
+    std::uniform_int_distribution<int> corner(-40, 40), any(-60, 60);
+    std::bernoulli_distribution half(0.5);
+    const int w = 2 * s + 2;
+    for (int cluster = 0; cluster < 12; ++cluster) {
+      const Int3 c(corner(rng), corner(rng), corner(rng));
+      for (int x = 0; x < w; ++x)
+        for (int y = 0; y < w; ++y)
+          for (int z = 0; z < w; ++z) {
+            const Int3 g = c + Int3(x, y, z);
+            if (half(rng) && unique.insert(key(g)).second) voxels.push_back(g);
+          }
+    }
+    for (int k = 0; k < 3000; ++k) {
+      const Int3 g(any(rng), any(rng), any(rng));
+      if (unique.insert(key(g)).second) voxels.push_back(g);
+    }
+    std::shuffle(voxels.begin(), voxels.end(), rng);
+    const auto dense = mesh_internal::CountCoarseCells(s, 0.25, [&](const auto& fn) {
+      for (const Int3& g : voxels) fn(g);
+    });
+    // The reference: counts per cell in an ordered map, cells grouped by their block.
+    const int need = int(std::ceil(0.25 * s * s * s));
+    std::map<Key, int> counts;
+    std::map<Key, std::vector<Int3>> blocks;
+    for (const Int3& g : voxels) {
+      ++counts[key(FloorDiv(g, Int3::Constant(s)))];
+      blocks[key(FloorDiv(g, Int3::Constant(kMeshBlockVoxels)))];
+    }
+    for (const auto& [c, n] : counts) {
+      if (n < need) continue;
+      const Int3 cell(std::get<0>(c), std::get<1>(c), std::get<2>(c));
+      blocks[key(FloorDiv(cell * s, Int3::Constant(kMeshBlockVoxels)))].push_back(cell);
+    }
+    ASSERT_EQ(dense.size(), blocks.size()) << "s = " << s;
+    size_t i = 0, kept = 0, empty = 0;
+    for (const auto& [b, cells] : blocks) {
+      EXPECT_EQ(key(dense[i].first), b) << "s = " << s << ", block " << i;
+      EXPECT_EQ(dense[i].second, cells) << "s = " << s << ", block " << i;
+      kept += cells.size();
+      empty += cells.empty();
+      ++i;
+    }
+    // Both kinds of cell and of block occur, so the comparison means something.
+    EXPECT_GE(kept, 12u) << "s = " << s;
+    EXPECT_LT(kept, counts.size()) << "s = " << s;
+    if (s <= 4) EXPECT_GT(empty, 0u) << "s = " << s;
+  }
+}
 
 TEST(MeshChangeLogTest, ARegionIsStaleOnlyForChangesAfterItsStampThatTouchIt) {
   MeshChangeLog log;

@@ -8,10 +8,14 @@
 #define RIM_MESH_AVX2 1
 #endif
 
+#include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "rim/base/types.h"
 #include "rim/map/local_map.h"
 #include "rim/map/map_geometry.h"
@@ -27,6 +31,52 @@ struct GridSpec {
   int r = 1, s = 1;
   int CellsPerBlock() const { return kMeshBlockVoxels * r / s; }
 };
+
+// A coarse level's cells of s finest voxels an edge (s divides kMeshBlockVoxels), from observed
+// voxels: `visit(fn)` calls fn(g) once for each observed voxel g, in any order. Returns per mesh
+// block holding any of them (blocks in key order) the cells holding at least need = ⌈share · s³⌉
+// of them, in key order (possibly none). The counts live in a dense array per block (at most 8³
+// cells), read out in order: no hash per voxel and no sort, where hashing each voxel's block and
+// then its cell, and sorting each block's voxels, was a third of meshing a 0.2 m tile.
+template <class Visit>
+std::vector<std::pair<Int3, std::vector<Int3>>> CountCoarseCells(int s, double share,
+                                                                 Visit&& visit) {
+  const int per = kMeshBlockVoxels / s;  // cells a block edge
+  const size_t cells = size_t(per) * per * per;
+  const int need = std::max(1, int(std::ceil(share * s * s * s)));
+  absl::flat_hash_map<Int3, uint32_t, Int3Hash, Int3Equal> index;  // block -> its counts
+  std::vector<std::pair<Int3, std::vector<uint16_t>>> counts;
+  Int3 last(0, 0, 0);
+  uint16_t* at = nullptr;  // the last voxel's block's counts: a z run stays in one block
+  visit([&](const Int3& g) {
+    const Int3 b = FloorDiv(g, Int3::Constant(kMeshBlockVoxels));
+    if (at == nullptr || b != last) {
+      auto [it, inserted] = index.try_emplace(b, uint32_t(counts.size()));
+      if (inserted) counts.emplace_back(b, std::vector<uint16_t>(cells, 0));
+      at = counts[it->second].second.data();
+      last = b;
+    }
+    const Int3 c = (g - b * kMeshBlockVoxels) / s;  // in [0, per) on each axis
+    ++at[(size_t(c.x()) * per + c.y()) * per + c.z()];
+  });
+  auto key_less = [](const Int3& a, const Int3& b) {
+    return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+  };
+  std::sort(counts.begin(), counts.end(),
+            [&](const auto& a, const auto& b) { return key_less(a.first, b.first); });
+  std::vector<std::pair<Int3, std::vector<Int3>>> out;
+  out.reserve(counts.size());
+  for (const auto& [b, n] : counts) {
+    std::vector<Int3> kept;
+    const Int3 c0 = b * per;
+    for (int x = 0; x < per; ++x)
+      for (int y = 0; y < per; ++y)
+        for (int z = 0; z < per; ++z)
+          if (n[(size_t(x) * per + y) * per + z] >= need) kept.push_back(c0 + Int3(x, y, z));
+    out.emplace_back(b, std::move(kept));
+  }
+  return out;
+}
 
 // Buffers reused from block to block by one meshing call: nothing of a block's dense size is
 // allocated or cleared per block.

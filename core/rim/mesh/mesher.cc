@@ -111,43 +111,13 @@ struct TileVoxels {
   std::vector<std::pair<Int3, std::vector<Int3>>> blocks;
 };
 
-// The coarse cells (s > 1) of a tile's observed voxels, counted in a dense array per block (at most
-// 8³ cells): a count is an increment where hashing each voxel's block and then its cell, and
-// sorting each block's voxels, was a third of meshing a 0.2 m tile. Reading the arrays in order
-// gives the cells in key order: the same lists as counting in hash maps and sorting. (At the finest
-// level, 16³-voxel arrays cost a little more than grouping by hash.)
+// The coarse cells (s > 1) of a tile's observed voxels (mesh_internal::CountCoarseCells: the same
+// lists as counting in hash maps and sorting, without either). At the finest level, 16³-voxel
+// arrays cost a little more than grouping by hash.
 TileVoxels CoarseTileCells(const MeshTileSource& src, const Int3& key, int s) {
-  const int per = kMeshBlockVoxels / s;  // cells a block edge
-  const size_t cells = size_t(per) * per * per;
-  const int need = std::max(1, int(std::ceil(kCoarseShare * s * s * s)));
-  absl::flat_hash_map<Int3, uint32_t, Int3Hash, Int3Equal> index;  // block -> its counts
-  std::vector<std::pair<Int3, std::vector<uint16_t>>> counts;
-  Int3 last(0, 0, 0);
-  uint16_t* at = nullptr;  // the last voxel's block's counts: a z run stays in one block
-  VisitObservedVoxels(src, key, [&](const Int3& g) {
-    const Int3 b = FloorDiv(g, Int3::Constant(kMeshBlockVoxels));
-    if (at == nullptr || b != last) {
-      auto [it, inserted] = index.try_emplace(b, uint32_t(counts.size()));
-      if (inserted) counts.emplace_back(b, std::vector<uint16_t>(cells, 0));
-      at = counts[it->second].second.data();
-      last = b;
-    }
-    const Int3 c = (g - b * kMeshBlockVoxels) / s;  // in [0, per) on each axis
-    ++at[(size_t(c.x()) * per + c.y()) * per + c.z()];
-  });
-  std::sort(counts.begin(), counts.end(),
-            [](const auto& a, const auto& b) { return KeyLess(a.first, b.first); });
   TileVoxels out;
-  out.blocks.reserve(counts.size());
-  for (const auto& [b, n] : counts) {
-    std::vector<Int3> kept;
-    const Int3 c0 = b * per;
-    for (int x = 0; x < per; ++x)
-      for (int y = 0; y < per; ++y)
-        for (int z = 0; z < per; ++z)
-          if (n[(size_t(x) * per + y) * per + z] >= need) kept.push_back(c0 + Int3(x, y, z));
-    out.blocks.emplace_back(b, std::move(kept));
-  }
+  out.blocks = mesh_internal::CountCoarseCells(
+      s, kCoarseShare, [&](const auto& fn) { VisitObservedVoxels(src, key, fn); });
   return out;
 }
 
