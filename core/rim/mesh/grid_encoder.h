@@ -37,7 +37,7 @@ struct GridSpec {
 // block holding any of them (blocks in key order) the cells holding at least need = ⌈share · s³⌉
 // of them, in key order (possibly none). The counts live in a dense array per block (at most 8³
 // cells), read out in order: no hash per voxel and no sort, where hashing each voxel's block and
-// then its cell, and sorting each block's voxels, was a third of meshing a 0.2 m tile.
+// then its cell, and sorting each block's voxels, was over a quarter of meshing a 0.2 m tile.
 template <class Visit>
 std::vector<std::pair<Int3, std::vector<Int3>>> CountCoarseCells(int s, double share,
                                                                  Visit&& visit) {
