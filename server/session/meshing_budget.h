@@ -42,8 +42,8 @@ class MeshingBudget {
 };
 
 // The default budget for a machine with `cores` hardware threads: a tenth of them (0.2 on a
-// 2-core box), at least a tenth of one. A dashboard at its default level (0.2 m) takes about 0.07
-// cores there and is never held back; one at the finest level (5 cm) wants 0.4 and more, and a
+// 2-core box), at least a tenth of one. A dashboard at its default level (0.2 m) takes about 0.06
+// cores there and is never held back; one at the finest level (5 cm) wants about 0.4, and a
 // quarter of the cores let it starve the robot's training to its floor (docs/service.md, "Sharing
 // the cores"; BENCHMARK.md, "Load").
 double DefaultMeshingCores(unsigned cores);
