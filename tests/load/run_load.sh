@@ -7,7 +7,9 @@
 # (rim_meshing_cpu_seconds_total) and wall time (rim_meshing_seconds_sum) per integrated frame
 # (rim_scans_integrated_total), and their waits for the meshing budget, summed over the load's
 # sessions (rim_load's "load_" robots) as last scraped before they closed. RIM_METRICS_OUT names a
-# file for that scrape.
+# file for that scrape. It prints the same once more for the steady state: from the first scrape
+# after the load's robots integrated RIM_STEADY_FRAMES frames each (default 40: the decoder trains
+# over the first 20, and while it trains every push re-meshes every block) to the last.
 set -euo pipefail
 BUILD="$(cd "$1" && pwd)"
 shift
@@ -27,13 +29,19 @@ for _ in $(seq 1 600); do
   sleep 0.1
 done
 [ -n "$ADDR" ] || { cat "${RIM_SERVER_LOG:-$WORK/log}" >&2; exit 1; }
-# Keeps the newest scrape that holds the load's sessions: their families go when they close.
+# Keeps every scrape that holds the load's sessions (their families go when they close); the
+# newest is last_scrape.
 (
+  n=0
   while sleep 1; do
     python3 -c 'import sys, urllib.request; open(sys.argv[2], "wb").write(
         urllib.request.urlopen(sys.argv[1], timeout=5).read())' "$METRICS" "$WORK/scrape" \
       2> /dev/null || continue
-    grep -q 'session="load_' "$WORK/scrape" && mv "$WORK/scrape" "$WORK/last_scrape"
+    if grep -q 'session="load_' "$WORK/scrape"; then
+      n=$((n + 1))
+      cp "$WORK/scrape" "$WORK/scrape.$(printf %05d "$n")"
+      mv "$WORK/scrape" "$WORK/last_scrape"
+    fi
   done
 ) &
 SCRAPER=$!
@@ -43,23 +51,42 @@ SCRAPER=""
 grep -E "^VmHWM|^VmRSS" "/proc/$PID/status" | sed 's/^/rim_server /'
 if [ -f "$WORK/last_scrape" ]; then
   [ -n "${RIM_METRICS_OUT:-}" ] && cp "$WORK/last_scrape" "$RIM_METRICS_OUT"
-  python3 - "$WORK/last_scrape" <<'PY'
-import re, sys
+  python3 - "$WORK/last_scrape" "${RIM_STEADY_FRAMES:-40}" "$WORK"/scrape.* <<'PY'
+import os, re, sys
 
-sums = {}
-for line in open(sys.argv[1]):
-    m = re.match(r'^(rim_[a-z_]+)\{[^}]*session="(load_[^"]*)"[^}]*\} (\S+)$', line)
-    if m and m.group(1) in ("rim_scans_integrated_total", "rim_meshing_cpu_seconds_total",
-                            "rim_meshing_seconds_sum", "rim_meshing_seconds_count",
-                            "rim_meshing_budget_wait_seconds_total"):
-        sums[m.group(1)] = sums.get(m.group(1), 0.0) + float(m.group(3))
-frames = sums.get("rim_scans_integrated_total", 0.0)
-if frames > 0:
-    print("watchers: meshing CPU %.1f ms per integrated frame, wall %.1f ms (%d tiles over %d "
-          "frames), waited for the budget %.1f s"
-          % (1e3 * sums.get("rim_meshing_cpu_seconds_total", 0.0) / frames,
-             1e3 * sums.get("rim_meshing_seconds_sum", 0.0) / frames,
-             sums.get("rim_meshing_seconds_count", 0.0), frames,
-             sums.get("rim_meshing_budget_wait_seconds_total", 0.0)))
+KEYS = ("rim_scans_integrated_total", "rim_meshing_cpu_seconds_total", "rim_meshing_seconds_sum",
+        "rim_meshing_seconds_count", "rim_meshing_budget_wait_seconds_total")
+
+
+def read(path):
+    """Sums of KEYS over the load's sessions, and the fewest frames any of them integrated."""
+    sums, frames = {}, []
+    for line in open(path):
+        m = re.match(r'^(rim_[a-z_]+)\{[^}]*session="(load_[^"]*)"[^}]*\} (\S+)$', line)
+        if m and m.group(1) in KEYS:
+            sums[m.group(1)] = sums.get(m.group(1), 0.0) + float(m.group(3))
+            if m.group(1) == KEYS[0]:
+                frames.append(float(m.group(3)))
+    return sums, min(frames, default=0.0)
+
+
+def report(label, sums):
+    frames = sums.get(KEYS[0], 0.0)
+    if frames > 0:
+        print("%s: meshing CPU %.1f ms per integrated frame, wall %.1f ms (%d tiles over %d "
+              "frames), waited for the budget %.1f s"
+              % (label, 1e3 * sums.get(KEYS[1], 0.0) / frames, 1e3 * sums.get(KEYS[2], 0.0) / frames,
+                 sums.get(KEYS[3], 0.0), frames, sums.get(KEYS[4], 0.0)))
+
+
+last, _ = read(sys.argv[1])
+report("watchers", last)
+steady = int(sys.argv[2])
+for path in sorted(p for p in sys.argv[3:] if os.path.exists(p)):
+    start, fewest = read(path)
+    if fewest >= steady:
+        report("watchers, steady (after %d frames a robot)" % steady,
+               {k: last.get(k, 0.0) - start.get(k, 0.0) for k in KEYS})
+        break
 PY
 fi
