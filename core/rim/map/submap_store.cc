@@ -271,22 +271,29 @@ std::vector<Int3> SubmapStore::ClearObserved(const std::vector<Int3>& cells) {
   return changed;
 }
 
-std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
-  const int B = config_.block_size;
-  std::vector<Int3> out;
+std::vector<std::pair<Int3, std::shared_ptr<const SubmapStore::Block>>> SubmapStore::FinestBlocks(
+    const Int3& key) const {
+  std::vector<std::pair<Int3, std::shared_ptr<const Block>>> out;
   std::lock_guard<std::mutex> lock(mu_);
   const Submap* s = FindLocked(key);
   if (!s) return out;
   const Int3 base = key.cwiseProduct(geometry_.cells(0));
-  for (const auto& [block_key, block_ptr] : s->blocks[0]) {
-    const Block& block = *block_ptr;
+  out.reserve(s->blocks[0].size());
+  for (const auto& [block_key, block] : s->blocks[0])
+    out.emplace_back(base + block_key * config_.block_size, block);
+  return out;
+}
+
+std::vector<Int3> SubmapStore::ObservedCells(const Int3& key) const {
+  const int B = config_.block_size;
+  std::vector<Int3> out;
+  for (const auto& [origin, block] : FinestBlocks(key))
     for (int x = 0; x < B; ++x)
       for (int y = 0; y < B; ++y)
         for (int z = 0; z < B; ++z) {
-          if (block.observed[(size_t(x) * B + y) * B + z] & LocalMap::kObserved)
-            out.push_back(base + block_key * B + Int3(x, y, z));
+          if (block->observed[(size_t(x) * B + y) * B + z] & LocalMap::kObserved)
+            out.push_back(origin + Int3(x, y, z));
         }
-  }
   return out;
 }
 

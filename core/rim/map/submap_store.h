@@ -112,6 +112,10 @@ class SubmapStore {
   std::vector<Int3> ClearObserved(const std::vector<Int3>& cells);
   // Finest-level lattice indices of observed voxels stored in a sub-map.
   std::vector<Int3> ObservedCells(const Int3& key) const;
+  // A sub-map's finest-level blocks, each with the lattice index of its minimum corner: shared
+  // and immutable, as ReadBlock's, so that a caller scans their flags after the lock is gone
+  // (ObservedCells lists their observed voxels in this order). Empty for an unknown sub-map.
+  std::vector<std::pair<Int3, std::shared_ptr<const Block>>> FinestBlocks(const Int3& key) const;
 
   // Per-sub-map versions (the map version of its last change); creates the entry if needed.
   void SetVersion(const Int3& key, uint64_t version);

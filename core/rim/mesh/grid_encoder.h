@@ -78,12 +78,32 @@ std::vector<std::pair<Int3, std::vector<Int3>>> CountCoarseCells(int s, double s
   return out;
 }
 
+// GridEncoder's per-block tables of one level (see its Level), kept in BlockScratch so that a block
+// reuses the last one's storage.
+struct EncoderLevelTables {
+  struct Axis {
+    size_t offset;  // the lattice cell's index part along this axis
+    float w[2];     // weights of the cell's lower and upper side: 1 − f and f
+    // w of each corner c = 4·cx + 2·cy + cz: w[cx] on the x axis, w[cy] on y, w[cz] on z.
+    alignas(32) float lanes[8];
+  };
+  std::vector<float> rows;  // the lattice rows, written before read
+  std::vector<uint8_t> have;
+  std::vector<Axis> axis[3];
+  std::vector<int> lattice[3];
+  std::vector<int64_t> slot_part[3];
+  std::vector<uint8_t> in_box[3];
+};
+
 // Buffers reused from block to block by one meshing call: nothing of a block's dense size is
-// allocated or cleared per block.
+// allocated or cleared per block, and nothing of its sparse size either once a larger block came.
 struct BlockScratch {
-  std::vector<float> rows[kMaxLevels];  // GridEncoder's lattice rows, written before read
-  std::vector<int32_t> point_index;     // BlockGrid's point table, all -1 between blocks
+  EncoderLevelTables levels[kMaxLevels];  // GridEncoder's
+  std::vector<int32_t> point_index;       // BlockGrid's point table, all -1 between blocks
   std::vector<float> features;
+  std::vector<Int3> cells, points;  // BlockGrid's
+  MarchScratch march;
+  std::vector<GridEdge> vertex_edges;  // BlockGrid::March's
 };
 
 // The trilinear encoding (model/encoder.h) at the mesh grid points of one block. A grid point m
@@ -113,16 +133,20 @@ class GridEncoder {
         const IntBox box = map.placed() ? map.LatticeBox(l) : IntBox{Int3::Ones(), Int3::Zero()};
         const Int3& d = map.level(l).dims;
         const int64_t stride[3] = {int64_t(d.y()) * d.z(), int64_t(d.z()), 1};
+        EncoderLevelTables& t = scratch.levels[l];
         for (int a = 0; a < 3; ++a) {
-          lv.lattice[a].resize(size_t(n));
-          lv.slot_part[a].resize(size_t(n));
-          lv.in_box[a].resize(size_t(n));
-          for (int t = 0; t < n; ++t) {
-            const int g = (point0[a] + t) * (mult / lv.scale);
-            lv.lattice[a][size_t(t)] = g;
-            lv.in_box[a][size_t(t)] = g >= box.lo[a] && g <= box.hi[a];
-            lv.slot_part[a][size_t(t)] = d[a] > 0 ? PosMod(g, d[a]) * stride[a] : 0;
+          t.lattice[a].resize(size_t(n));
+          t.slot_part[a].resize(size_t(n));
+          t.in_box[a].resize(size_t(n));
+          for (int k = 0; k < n; ++k) {
+            const int g = (point0[a] + k) * (mult / lv.scale);
+            t.lattice[a][size_t(k)] = g;
+            t.in_box[a][size_t(k)] = g >= box.lo[a] && g <= box.hi[a];
+            t.slot_part[a][size_t(k)] = d[a] > 0 ? PosMod(g, d[a]) * stride[a] : 0;
           }
+          lv.lattice[a] = t.lattice[a].data();
+          lv.slot_part[a] = t.slot_part[a].data();
+          lv.in_box[a] = t.in_box[a].data();
         }
         lv.features = map.placed() ? map.level(l).features(0) : nullptr;
         any_aligned_ = true;
@@ -136,22 +160,24 @@ class GridEncoder {
       const size_t count = size_t(lv.dims.x()) * lv.dims.y() * lv.dims.z();
       // Rows are written before they are read (`have`): the buffer is reused from block to
       // block without clearing.
-      std::vector<float>& rows = scratch.rows[l];
-      if (rows.size() < count * D_) rows.resize(count * D_);
-      lv.rows = rows.data();
-      lv.have.assign(count, 0);
+      EncoderLevelTables& t = scratch.levels[l];
+      if (t.rows.size() < count * D_) t.rows.resize(count * D_);
+      lv.rows = t.rows.data();
+      t.have.assign(count, 0);
+      lv.have = t.have.data();
       // Per axis and block-local coordinate: the lattice cell (from lo), as a row-index stride
       // multiple, and the weights of its two sides, computed once per block instead of per point
       // (the same arithmetic, so the same bits).
       const size_t stride[3] = {size_t(lv.dims.y()) * lv.dims.z(), size_t(lv.dims.z()), 1};
       const float inv = 1.f / float(lv.scale);
       for (int a = 0; a < 3; ++a) {
-        lv.axis[a].resize(size_t(n));
-        for (int t = 0; t < n; ++t) {
-          const int m = (point0[a] + t) * mult;
+        t.axis[a].resize(size_t(n));
+        lv.axis[a] = t.axis[a].data();
+        for (int k = 0; k < n; ++k) {
+          const int m = (point0[a] + k) * mult;
           const int base = FloorDiv(m, lv.scale);
           const float f = float(m - base * lv.scale) * inv;
-          Axis& e = lv.axis[a][size_t(t)];
+          Axis& e = t.axis[a][size_t(k)];
           e.offset = size_t(base - lv.lo[a]) * stride[a];
           e.w[0] = 1.f - f;
           e.w[1] = f;
@@ -178,25 +204,20 @@ class GridEncoder {
   }
 
  private:
-  struct Axis {
-    size_t offset;  // the lattice cell's index part along this axis
-    float w[2];     // weights of the cell's lower and upper side: 1 − f and f
-    // w of each corner c = 4·cx + 2·cy + cz: w[cx] on the x axis, w[cy] on y, w[cz] on z.
-    alignas(32) float lanes[8];
-  };
+  using Axis = EncoderLevelTables::Axis;
   struct Level {
     int scale = 1;  // r·2^l: the level's voxel edge in 1/r finest voxels
     Int3 lo = Int3::Zero(), dims = Int3::Zero();
-    float* rows = nullptr;  // count·D floats of BlockScratch::rows[level]
-    std::vector<uint8_t> have;
-    std::vector<Axis> axis[3];    // per axis and block-local coordinate
-    size_t corner_offset[8];      // row-index offset of corner (cx, cy, cz) = c from the cell
-    bool aligned = false;         // every grid point on a lattice point: no row cache
-    std::vector<int> lattice[3];  // aligned: per axis and block-local coordinate, the lattice index
+    float* rows = nullptr;  // count·D floats of BlockScratch's rows of the level
+    uint8_t* have = nullptr;
+    const Axis* axis[3] = {};    // per axis and block-local coordinate
+    size_t corner_offset[8];     // row-index offset of corner (cx, cy, cz) = c from the cell
+    bool aligned = false;        // every grid point on a lattice point: no row cache
+    const int* lattice[3] = {};  // aligned: per axis and block-local coordinate, the lattice index
     // aligned: per axis and block-local coordinate, its part of the live map's slot and whether it
     // lies in the box; the live map's rows from slot 0 (null: no box)
-    std::vector<int64_t> slot_part[3];
-    std::vector<uint8_t> in_box[3];
+    const int64_t* slot_part[3] = {};
+    const uint8_t* in_box[3] = {};
     const float* features = nullptr;
   };
 

@@ -260,8 +260,10 @@ class SparseGrid {
 // caller's list (its index), so nothing of size n³ is allocated or cleared per call.
 class DenseGrid {
  public:
-  explicit DenseGrid(const DenseGridSamples& d)
-      : d_(d), done_(d.count, 0), edges_(3 * d.count, kNoVertex) {
+  DenseGrid(const DenseGridSamples& d, MarchScratch* scratch)
+      : d_(d), done_(scratch->done), edges_(scratch->edges) {
+    done_.assign(d.count, 0);
+    edges_.assign(3 * d.count, kNoVertex);
     const size_t n = size_t(d.n);
     for (int c = 0; c < kNumCorners; ++c)
       corner_offset_[c] = (c & 1) * n * n + (c >> 1 & 1) * n + (c >> 2 & 1);
@@ -301,8 +303,8 @@ class DenseGrid {
   const DenseGridSamples& d_;
   size_t corner_offset_[kNumCorners];
   size_t base_ = 0;
-  std::vector<uint8_t> done_;
-  std::vector<uint32_t> edges_;
+  std::vector<uint8_t>& done_;
+  std::vector<uint32_t>& edges_;
 };
 
 }  // namespace
@@ -319,7 +321,13 @@ Mesh MarchingCubes(const std::vector<Int3>& cells, const GridSamples& samples,
 
 Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
                    std::vector<GridEdge>* vertex_edges) {
-  DenseGrid grid(samples);
+  MarchScratch scratch;
+  return MarchingCubes(cells, samples, vertex_edges, &scratch);
+}
+
+Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges, MarchScratch* scratch) {
+  DenseGrid grid(samples, scratch);
   return March(cells, samples.step_m, samples.origin_m, grid, vertex_edges);
 }
 

@@ -78,6 +78,15 @@ struct DenseGridSamples {
 Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
                    std::vector<GridEdge>* vertex_edges);
 
+// Per-point buffers the DenseGridSamples overload needs, for a caller that meshes many blocks to
+// reuse (their contents do not carry over from call to call).
+struct MarchScratch {
+  std::vector<uint8_t> done;
+  std::vector<uint32_t> edges;
+};
+Mesh MarchingCubes(const std::vector<Int3>& cells, const DenseGridSamples& samples,
+                   std::vector<GridEdge>* vertex_edges, MarchScratch* scratch);
+
 // Number of triangles the generated case table gives for a corner sign mask (bit i set = corner i
 // negative, corner numbering as above). Exposed for tests.
 int MarchingCubesTriangleCount(uint8_t case_mask);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <mutex>
 
 #include "absl/strings/str_cat.h"
@@ -60,8 +61,35 @@ void VisitObservedVoxels(const MeshTileSource& src, const Int3& key, Fn&& fn) {
   // the cells at hi from the store dropped them from the mesh along the faces of the last box,
   // though queries reported them observed.
   const IntBox box = map.LatticeBox(0);
-  for (const Int3& g : src.store.ObservedCells(key))
-    if (!map.placed() || !box.Contains(g)) fn(g);
+  // The store's blocks (ObservedCells' voxels in its order), their flags read without the store's
+  // lock and a z run of eight at a time; a block wholly inside the box is skipped unread.
+  using Word = uint64_t __attribute__((may_alias));
+  constexpr uint64_t kObservedBytes = 0x0101010101010101ull * LocalMap::kObserved;
+  static_assert(LocalMap::kObserved == 1, "one bit a byte: a set bit is a byte's flag");
+  const int B = src.store.block_size();
+  const size_t block_bytes = size_t(B) * B * B;
+  for (const auto& [origin, block] : src.store.FinestBlocks(key)) {
+    if (block->observed.size() != block_bytes) continue;
+    if (map.placed() && box.Contains(origin) && box.Contains(origin + Int3::Constant(B - 1)))
+      continue;
+    const uint8_t* flags = block->observed.data();
+    for (int x = 0; x < B; ++x)
+      for (int y = 0; y < B; ++y) {
+        const uint8_t* run = flags + (size_t(x) * B + y) * B;
+        auto visit = [&](int z) {
+          const Int3 g = origin + Int3(x, y, z);
+          if (!map.placed() || !box.Contains(g)) fn(g);
+        };
+        if (B == 8) {
+          uint64_t w;
+          std::memcpy(&w, run, 8);
+          for (w &= kObservedBytes; w != 0; w &= w - 1) visit(__builtin_ctzll(w) >> 3);
+        } else {
+          for (int z = 0; z < B; ++z)
+            if (run[z] & LocalMap::kObserved) visit(z);
+        }
+      }
+  }
   if (map.placed()) {
     const Int3 lo = box.lo.cwiseMax(tile_lo);
     const Int3 hi = box.hi.cwiseMin(tile_hi);
@@ -73,9 +101,6 @@ void VisitObservedVoxels(const MeshTileSource& src, const Int3& key, Fn&& fn) {
     // voxels come in the same order.
     const Int3& dims = grid.dims;
     const uint8_t* flags = grid.flag_data();
-    using Word = uint64_t __attribute__((may_alias));
-    constexpr uint64_t kObservedBytes = 0x0101010101010101ull * LocalMap::kObserved;
-    static_assert(LocalMap::kObserved == 1, "one bit a byte: a set bit is a byte's flag");
     auto run = [&](int x, int y, int z0, int64_t first, int64_t count) {
       int64_t i = first;
       const int64_t end = first + count;
@@ -161,7 +186,13 @@ class BlockGrid {
   // cells (CollectTileVoxels). Caller holds the shared lock.
   BlockGrid(const MeshTileSource& src, GridSpec spec, const Int3& block,
             const std::vector<Int3>& voxels, FeatureReader& reader, BlockScratch& scratch)
-      : n_(spec.CellsPerBlock() + 1), point0_(block * spec.CellsPerBlock()), scratch_(scratch) {
+      : n_(spec.CellsPerBlock() + 1),
+        point0_(block * spec.CellsPerBlock()),
+        scratch_(scratch),
+        cells_(scratch.cells),
+        points_(scratch.points) {
+    cells_.clear();
+    points_.clear();
     const int r = spec.r;
     const Int3 voxel0 = block * kMeshBlockVoxels;
     // Every grid point of an observed voxel's cells lies on that voxel (interior, face, edge or
@@ -207,8 +238,8 @@ class BlockGrid {
     samples.index = scratch_.point_index.data();
     samples.values = values_.data();
     samples.count = values_.size();
-    std::vector<GridEdge> edges;
-    Mesh mesh = MarchingCubes(cells_, samples, &edges);
+    std::vector<GridEdge>& edges = scratch_.vertex_edges;
+    Mesh mesh = MarchingCubes(cells_, samples, &edges, &scratch_.march);
     piece->vertices = std::move(mesh.vertices);
     piece->faces = std::move(mesh.faces);
     const int last = n_ - 1;
@@ -277,7 +308,8 @@ class BlockGrid {
   uint64_t layout_hash_ = 0;
   const Int3 point0_;
   BlockScratch& scratch_;
-  std::vector<Int3> cells_, points_;
+  std::vector<Int3>& cells_;   // scratch_.cells
+  std::vector<Int3>& points_;  // scratch_.points
   std::vector<float> values_;
 };
 
@@ -353,6 +385,10 @@ absl::StatusOr<Mesh> MeshTileBlocks(
   std::vector<std::shared_ptr<const Piece>> pieces;
   pieces.reserve(voxels.blocks.size());
   BlockScratch scratch;
+  // One reader for the tile's blocks: the store blocks it keeps were read after `stamp`, like
+  // everything else the blocks are made from, so a change they miss is in the log for the next
+  // update. Each block reads the live map under its own lock.
+  FeatureReader reader(src.local_map, src.store);
   absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal> next;
   MeshUpdateStats s;
   s.blocks = int(voxels.blocks.size());
@@ -373,7 +409,6 @@ absl::StatusOr<Mesh> MeshTileBlocks(
       }
     }
     std::shared_lock lock(src.mutex);
-    FeatureReader reader(src.local_map, src.store);
     BlockGrid grid(src, *spec, block, block_voxels, reader, scratch);
     lock.unlock();
     const uint64_t hash = keep_values ? grid.layout_hash() : 0;
