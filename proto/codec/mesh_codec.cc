@@ -28,7 +28,10 @@ constexpr double kSqrt3 = 1.7320508075688772;
 // standard edgebreaker) 1.00 bytes/face in 9 ms; speed 4 (valence edgebreaker, parallelogram
 // prediction) 0.76 bytes/face in 10 ms; speed 1 (constrained multi-parallelogram) 0.64 bytes/face
 // in 20 ms. Speed 4 takes the large saving at no cost; tiles are re-encoded on every change.
+// Speed 8 (standard edgebreaker, difference prediction) is DracoEffort::kFaster: on coarse tiles,
+// whose vertices lie a cell apart, parallelogram prediction saves nothing (mesh_codec.h).
 constexpr int kDracoSpeed = 4;
+constexpr int kDracoFasterSpeed = 8;
 
 bool Finite3(const std::array<double, 3>& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
@@ -171,14 +174,15 @@ absl::StatusOr<std::string> RunEncoder(draco::Encoder* encoder, const draco::Mes
 
 absl::StatusOr<std::string> EncodeTileDraco(const Mesh& mesh, const std::array<double, 3>& tile_min,
                                             const std::array<double, 3>& tile_max,
-                                            double max_error_m) {
+                                            double max_error_m, DracoEffort effort) {
   RIM_RETURN_IF_ERROR(ValidateTileInput(mesh, tile_min, tile_max));
   RIM_ASSIGN_OR_RETURN(const QuantizationGrid grid,
                        ChooseGrid(mesh, tile_min, tile_max, max_error_m));
   draco::Mesh dm;
   ToDracoMesh(mesh, &dm);
   draco::Encoder encoder;
-  encoder.SetSpeedOptions(kDracoSpeed, kDracoSpeed);
+  const int speed = effort == DracoEffort::kFaster ? kDracoFasterSpeed : kDracoSpeed;
+  encoder.SetSpeedOptions(speed, speed);
   if (dm.num_faces() == 0) {
     // Edgebreaker refuses a mesh without triangles; the sequential coder writes a valid empty
     // mesh that any Draco decoder reads. Without faces every vertex is unreferenced: none is kept.

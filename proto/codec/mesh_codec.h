@@ -37,9 +37,22 @@ absl::StatusOr<int> PositionQuantizationBits(double range_m, double max_error_m)
 // InvalidArgument also for an invalid tile box, non-finite vertices, or face indices out of range.
 // A mesh without faces (or with only degenerate ones) encodes to a small valid payload (22 bytes)
 // that decodes to an empty mesh, so that "this tile is now empty" travels like any other version.
+//
+// `effort` picks Draco's coders: kSmallest (speed 4: valence edgebreaker, parallelogram
+// prediction) for the fewest bytes, kFaster (speed 8: standard edgebreaker, difference
+// prediction) for less time. On watched city tiles (docs/perf-log.md, "Draco's coders by level"):
+// at 0.2 m cells both give the same bytes and kFaster takes 10-18 % less time; at 0.1 m it is
+// 8-13 % faster for 5 % more bytes, at 5 cm 16-19 % faster for 15 % more.
+enum class DracoEffort { kSmallest, kFaster };
+// The effort the service gives a tile meshed at `cell_m` cells when its finest level is
+// `finest_m`: kFaster from four times the finest cell up, where it costs no bytes; kSmallest below.
+inline DracoEffort TileEffort(double cell_m, double finest_m) {
+  return cell_m >= 4 * finest_m * (1 - 1e-6) ? DracoEffort::kFaster : DracoEffort::kSmallest;
+}
 absl::StatusOr<std::string> EncodeTileDraco(const Mesh& mesh, const std::array<double, 3>& tile_min,
                                             const std::array<double, 3>& tile_max,
-                                            double max_error_m = 0.001);
+                                            double max_error_m = 0.001,
+                                            DracoEffort effort = DracoEffort::kSmallest);
 
 // Decodes a payload of EncodeTileDraco (or any Draco triangle mesh with 3D positions). DataLoss
 // for bytes that are not such a mesh, including truncated or corrupted payloads and decoded

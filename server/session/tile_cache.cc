@@ -43,7 +43,8 @@ absl::StatusOr<std::shared_ptr<const EncodedTile>> TileCache::Get(const Mapper& 
   } else {
     const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
     const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-    auto draco = codec::EncodeTileDraco(*mesh, lo, hi, std::max(0.001, double(*level) / 50));
+    auto draco = codec::EncodeTileDraco(*mesh, lo, hi, std::max(0.001, double(*level) / 50),
+                                        codec::TileEffort(*level, mapper.MeshLevels().front()));
     if (!draco.ok())
       return absl::InternalError(absl::StrCat("encoding tile (", tile.key.x(), ",", tile.key.y(),
                                               ",", tile.key.z(), "): ", draco.status().message()));

@@ -203,7 +203,9 @@ void BM_MeshUpdate(benchmark::State& state) {
         encode_clock.Start();
         const std::array<double, 3> lo{tile.min_m.x(), tile.min_m.y(), tile.min_m.z()};
         const std::array<double, 3> hi{tile.max_m.x(), tile.max_m.y(), tile.max_m.z()};
-        absl::StatusOr<std::string> draco = codec::EncodeTileDraco(*m, lo, hi, max_error_m);
+        absl::StatusOr<std::string> draco = codec::EncodeTileDraco(
+            *m, lo, hi, max_error_m,
+            codec::TileEffort(*mapper.MeshLevel(level), mapper.MeshLevels().front()));
         encode_clock.Stop();
         CheckOk(draco.status(), "EncodeTileDraco");
         bytes += draco->size();

@@ -164,6 +164,32 @@ TEST_P(TileRoundTripTest, EllipsoidFillingTheTileRoundTripsWithinOneMillimetre) 
   EXPECT_GT(worst, 0.0002);
 }
 
+TEST_P(TileRoundTripTest, FasterCodersKeepTheBound) {
+  const std::array<double, 3> size = GetParam().size;
+  const std::array<double, 3> tile_min = {-130.0, 52.0, -2.0};
+  const std::array<double, 3> tile_max = {tile_min[0] + size[0], tile_min[1] + size[1],
+                                          tile_min[2] + size[2]};
+  const Mesh mesh =
+      UvEllipsoid({tile_min[0] + size[0] / 2, tile_min[1] + size[1] / 2, 1.0},
+                  {size[0] / 2 - 0.05, size[1] / 2 - 0.05, size[2] / 2 - 0.05}, 40, 64);
+  auto smallest = EncodeTileDraco(mesh, tile_min, tile_max, 0.004, DracoEffort::kSmallest);
+  auto faster = EncodeTileDraco(mesh, tile_min, tile_max, 0.004, DracoEffort::kFaster);
+  ASSERT_TRUE(smallest.ok() && faster.ok());
+  // Other coders, so other bytes; the same mesh within the bound.
+  EXPECT_NE(*smallest, *faster);
+  auto decoded = DecodeTileDraco(*faster);
+  ASSERT_TRUE(decoded.ok()) << decoded.status();
+  ExpectSameMesh(mesh, *decoded, 0.004);
+}
+
+TEST(MeshCodecTest, TheServiceTakesTheFasterCodersFromFourTimesTheFinestCell) {
+  EXPECT_EQ(TileEffort(0.05, 0.05), DracoEffort::kSmallest);
+  EXPECT_EQ(TileEffort(0.1, 0.05), DracoEffort::kSmallest);
+  EXPECT_EQ(TileEffort(0.2f, 0.05f), DracoEffort::kFaster);  // float levels, as the mapper's
+  EXPECT_EQ(TileEffort(0.4, 0.05), DracoEffort::kFaster);
+  EXPECT_EQ(TileEffort(0.2, 0.1), DracoEffort::kSmallest);
+}
+
 TEST_P(TileRoundTripTest, TighterBoundCostsBytesAndIsMet) {
   const std::array<double, 3> size = GetParam().size;
   const std::array<double, 3> tile_min = {10.0, 20.0, 0.0};
