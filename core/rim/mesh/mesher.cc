@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <mutex>
+#include <optional>
 
 #include "absl/strings/str_cat.h"
 #include "rim/mesh/grid_encoder.h"
@@ -385,10 +386,13 @@ absl::StatusOr<Mesh> MeshTileBlocks(
   std::vector<std::shared_ptr<const Piece>> pieces;
   pieces.reserve(voxels.blocks.size());
   BlockScratch scratch;
-  // One reader for the tile's blocks: the store blocks it keeps were read after `stamp`, like
-  // everything else the blocks are made from, so a change they miss is in the log for the next
-  // update. Each block reads the live map under its own lock.
-  FeatureReader reader(src.local_map, src.store);
+  // One reader for the tile's blocks while the box stays where it was: the store blocks it keeps
+  // were read after `stamp`, like everything else the blocks are made from, so a change they miss
+  // is in the log for the next update. A slide between two blocks (each reads the live map under
+  // its own lock) moves slabs from the box to the store, which the kept blocks predate: the next
+  // block then starts a reader of its own, as every block did before.
+  std::optional<FeatureReader> reader;
+  IntBox reader_box{Int3::Zero(), Int3::Zero()};
   absl::flat_hash_map<Int3, std::shared_ptr<Piece>, Int3Hash, Int3Equal> next;
   MeshUpdateStats s;
   s.blocks = int(voxels.blocks.size());
@@ -409,7 +413,13 @@ absl::StatusOr<Mesh> MeshTileBlocks(
       }
     }
     std::shared_lock lock(src.mutex);
-    BlockGrid grid(src, *spec, block, block_voxels, reader, scratch);
+    const IntBox box =
+        src.local_map.placed() ? src.local_map.LatticeBox(0) : IntBox{Int3::Zero(), Int3::Zero()};
+    if (!reader || !(box.lo == reader_box.lo && box.hi == reader_box.hi)) {
+      reader.emplace(src.local_map, src.store);
+      reader_box = box;
+    }
+    BlockGrid grid(src, *spec, block, block_voxels, *reader, scratch);
     lock.unlock();
     const uint64_t hash = keep_values ? grid.layout_hash() : 0;
     if (old && !old->values.empty() && old->voxels_hash == hash) {
