@@ -300,11 +300,14 @@ TEST_F(MapperTest, TilesReportOnlyChangesSinceAVersion) {
   }
 }
 
-TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxels) {
-  // Forward then back, so that the final box's faces cut through voxels observed earlier (which
-  // now live in the store): every observed voxel must belong to exactly one tile.
+// Forward then back, so that the final box's faces cut through voxels observed earlier (which
+// now live in the store): every observed voxel must belong to exactly one tile. `extra`: more
+// config overrides.
+void ExpectTilesCoverExactlyTheObservedVoxels(const std::vector<std::string>& extra) {
   const AnalyticScene scene = SmallScene();
-  auto mapper = Mapper::Create(SmallConfig({"decoder.freeze_after_frames=3"}));
+  std::vector<std::string> overrides = {"decoder.freeze_after_frames=3"};
+  overrides.insert(overrides.end(), extra.begin(), extra.end());
+  auto mapper = Mapper::Create(SmallConfig(overrides));
   ASSERT_TRUE(mapper.ok());
   for (float x : {0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 3.f, 1.f, 0.5f})
     ASSERT_TRUE((*mapper)->IntegrateScan(ScanAt(scene, x, uint32_t(20 + 10 * x))).ok());
@@ -336,6 +339,16 @@ TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxels) {
     if (!observed.count(c)) ADD_FAILURE() << "tiled only " << c[0] << " " << c[1] << " " << c[2];
   for (const auto& c : observed)
     if (!tiled.count(c)) ADD_FAILURE() << "observed only " << c[0] << " " << c[1] << " " << c[2];
+}
+
+TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxels) {
+  ExpectTilesCoverExactlyTheObservedVoxels({});
+}
+
+// Stored blocks of another size than the eight voxels whose flags the tile listing reads a z run
+// at a time.
+TEST(MapperMeshCoverageTest, TilesCoverExactlyTheObservedVoxelsWithOtherStoreBlocks) {
+  ExpectTilesCoverExactlyTheObservedVoxels({"submap.block_size=4"});
 }
 
 // A wall 6.2 m ahead, 4 m tall. From the start the sensor sees its face up to the box's top, but
