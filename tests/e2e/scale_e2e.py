@@ -51,10 +51,20 @@ SESSION = ["grid.half_extent_x_m=2", "grid.half_extent_y_m=2", "grid.z_min_m=-1.
            "sampler.rays_per_iteration=256"]
 
 
+_GIVEN_PORTS: set = set()
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A port free now that this run has not handed out before: the kernel may give the port a
+    socket just closed on to the next bind, and a replica once got the same port to listen on and
+    to serve its metrics on."""
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _GIVEN_PORTS:
+            _GIVEN_PORTS.add(port)
+            return port
 
 
 def wait_port(port: int, timeout_s: float) -> bool:
