@@ -40,9 +40,9 @@ absl::StatusOr<int> PositionQuantizationBits(double range_m, double max_error_m)
 //
 // `effort` picks Draco's coders: kSmallest (speed 4: valence edgebreaker, parallelogram
 // prediction) for the fewest bytes, kFaster (speed 8: standard edgebreaker, difference
-// prediction) for less time. On watched city tiles (docs/perf-log.md, "Draco's coders by level"):
-// at 0.2 m cells both give the same bytes and kFaster takes 10-18 % less time; at 0.1 m it is
-// 8-13 % faster for 5 % more bytes, at 5 cm 16-19 % faster for 15 % more.
+// prediction) for less time. On watched city tiles (docs/perf-log.md, "The 0.2 m watcher through
+// the server"): at 0.2 m cells both give the same bytes and kFaster takes 10-18 % less time; at
+// 0.1 m it is 8-13 % faster for 5 % more bytes, at 5 cm 16-19 % faster for 15 % more.
 enum class DracoEffort { kSmallest, kFaster };
 // The effort the service gives a tile meshed at `cell_m` cells when its finest level is
 // `finest_m`: kFaster from four times the finest cell up, where it costs no bytes; kSmallest below.
