@@ -6,6 +6,8 @@
 // used as they are instead of area samples ("gt_kind": "points").
 // --box HX,HY,ZMIN,ZMAX --seq DIR evaluates both inside the union of the local boxes about the
 // sequence's sensor positions: what a mapper with that local map could have reconstructed.
+// --present FILE (rim_sim's gt_moving_last.ply) also reports the ghosts: the floaters that are not
+// something standing there at the end, such as a person in the last scans.
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -42,7 +44,8 @@ using rim::eval::Metrics;
 constexpr char kSynopsis[] =
     "usage: rim_eval PRED.ply GT.ply [--json] [--samples N] [--threads N] [--seed S]\n"
     "                [--voxel M] [--no-crop] [--region x0,y0,z0,x1,y1,z1]\n"
-    "                [--box HX,HY,ZMIN,ZMAX --seq DIR] [--misses FILE] [--floaters FILE]";
+    "                [--box HX,HY,ZMIN,ZMAX --seq DIR] [--misses FILE] [--floaters FILE]\n"
+    "                [--present FILE]";
 constexpr char kFooter[] =
     "A PLY without faces is a point cloud: its vertices are used as they are (voxel-averaged, not\n"
     "sampled). rim_sim's gt_observed.ply is one: the surface its sensor actually saw.";
@@ -58,6 +61,7 @@ struct Args {
   double box[4] = {0, 0, 0, 0};            // HX, HY, ZMIN, ZMAX
   std::string seq_dir;                     // empty: no --seq
   std::string misses_path, floaters_path;  // empty: not written
+  std::string present_path;                // empty: no ghost share
 };
 
 // "bad value for --flag: 'VALUE'".
@@ -167,6 +171,12 @@ void AddFlags(CLI::App& app, Args* args) {
                       "write the same for the prediction points farther than 20 cm from the GT")
            ->type_name("FILE")
            ->transform(path("--floaters")));
+  last(app.add_option("--present", args->present_path,
+                      "surfaces there at the end that the GT leaves out (rim_sim's\n"
+                      "gt_moving_last.ply: the people and cars where the last scan saw them):\n"
+                      "also report the ghosts, the floaters farther than 20 cm from these too")
+           ->type_name("FILE")
+           ->transform(path("--present")));
 }
 
 // Usage errors (after parsing) that name the flag; OK when ARGS are complete.
@@ -231,7 +241,7 @@ Json BoxJson(const Args& args) {
 // Undefined values (no prediction point kept: NaN) are null, as JSON has no NaN.
 std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
   const EvalOptions& o = args.options;
-  const Json json = {{"prediction", args.pred_path},
+  Json json = {{"prediction", args.pred_path},
                      {"ground_truth", args.gt_path},
                      {"pred_kind", InputKindName(r.pred_kind)},
                      {"gt_kind", InputKindName(r.gt_kind)},
@@ -261,6 +271,11 @@ std::string FormatJson(const Args& args, const EvalResult& r, double seconds) {
                      {"seconds", JsonNumber(seconds, 3)},
                      {"floater_share", JsonNumber(r.floater_share, 6)},
                      {"floater_area_m2", AreaJson(r.pred_kind, r.floater_area_m2)}};
+  if (r.has_present) {
+    json["present"] = args.present_path;
+    json["ghost_share"] = JsonNumber(r.ghost_share, 6);
+    json["ghost_area_m2"] = AreaJson(r.pred_kind, r.ghost_area_m2);
+  }
   return rim::io::DumpJson(json);
 }
 
@@ -306,6 +321,13 @@ std::string FormatTable(const Args& args, const EvalResult& r, double seconds) {
                         r.pred_kind == InputKind::kPoints
                             ? std::string("points")
                             : absl::StrFormat("area (%.2f m^2)", r.floater_area_m2));
+  if (r.has_present) {
+    absl::StrAppendFormat(&out, "Ghosts (floaters > %g cm from %s too): %.2f %% of predicted %s\n",
+                          100 * o.floater_m, args.present_path, 100 * r.ghost_share,
+                          r.pred_kind == InputKind::kPoints
+                              ? std::string("points")
+                              : absl::StrFormat("area (%.2f m^2)", r.ghost_area_m2));
+  }
   absl::StrAppendFormat(
       &out, "F-score threshold %g cm; crop to GT box: %s; seed %d; %.1f s\n", 100 * o.fscore_m,
       o.crop_to_gt ? absl::StrFormat("on (+%g cm)", 100 * o.crop_margin_m) : std::string("off"),
@@ -375,6 +397,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "rim_eval: cannot read ground truth: %s\n",
                  std::string(gt.status().message()).c_str());
     return 1;
+  }
+  if (!args.present_path.empty()) {
+    absl::StatusOr<rim::Mesh> present = rim::ReadMeshPly(args.present_path);
+    if (!present.ok()) {
+      std::fprintf(stderr, "rim_eval: cannot read --present: %s\n",
+                   std::string(present.status().message()).c_str());
+      return 1;
+    }
+    args.options.present = std::make_shared<const rim::Mesh>(*std::move(present));
   }
   if (args.has_region) {
     *pred = rim::eval::CropMeshToBox(*pred, args.region_min, args.region_max);

@@ -341,6 +341,21 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
   RIM_RETURN_IF_ERROR(WriteKittiTimes(Join(o.out_dir, "times.txt"), o.frames, kFrameRateHz));
   RIM_RETURN_IF_ERROR(WriteGroundTruth(o.out_dir, gt));
   RIM_RETURN_IF_ERROR(WritePointCloudPly(Join(o.out_dir, "gt_observed.ply"), observed_points));
+  // The moving things where the last scan saw them: true surfaces at the end of the drive that
+  // gt.ply leaves out. A mapper cannot know that a person standing in its last scans will walk
+  // on, so an evaluation may count a map's surface there as no ghost (rim_eval --present).
+  const bool moving = !static_caster;
+  const double last_time = (o.frames - 1) / kFrameRateHz;
+  size_t moving_last_faces = 0;
+  if (moving) {
+    Scene last;
+    last.primitives = MovingAt(city, last_time);
+    GroundTruthOptions last_options;
+    last_options.tessellation.tolerance = kCityMeshTolerance;
+    const rim::Mesh moving_last = BuildGroundTruthMesh(last, last_options);
+    moving_last_faces = moving_last.faces.size();
+    RIM_RETURN_IF_ERROR(rim::WriteMeshPly(Join(o.out_dir, "gt_moving_last.ply"), moving_last));
+  }
 
   // The box as scene.json and README.txt (in its indented column) describe it.
   const ObservedBox& box = o.observed_box;
@@ -411,6 +426,15 @@ absl::StatusOr<SimSummary> RunCity(const SimOptions& o) {
       {"file", "gt_observed.ply"}, {"kind", "points"}, {"points", observed_points.size()},
       {"voxel_m", kObservedVoxel}, {"box", box_json},  {"noise_free", true},
       {"includes_walkers", false}};
+  if (moving) {
+    scene["gt_moving_last"] = {
+        {"file", "gt_moving_last.ply"},
+        {"time_s", rim::io::JsonNumber(last_time, 4)},
+        {"faces", moving_last_faces},
+        {"about",
+         "the walkers, crossers and passing cars as they stand at the last frame's time: there at "
+         "the end of the drive, though not in gt.ply"}};
+  }
   RIM_RETURN_IF_ERROR(WriteSceneJson(o.out_dir, scene));
 
   const std::string readme = absl::StrFormat(
@@ -434,7 +458,7 @@ Layout: KITTI odometry.
   gt_observed.ply      the surface the LiDAR actually saw, as a point cloud (binary PLY, float
                        x, y, z, world frame, no faces): the exact, noise-free hit of every return
                        on the static scene (returns from walkers left out)%s
-  scene.json           the generation parameters.
+  scene.json           the generation parameters.%s
 
 Sensor: %d beams evenly spaced from +%.3g to %.3g deg, %d columns, range %.3g..%.3g m,
 mounted %.3g m above the ground. Range noise: Gaussian, stddev %.6g m, added along each ray.
@@ -445,7 +469,13 @@ the street centre lines; %.3g of them with balconies, %.3g with a lower annex, %
 cars on the rest); %.3g of the street trees have a broad, low crown. Walkers: %d pedestrians on the sidewalks all round the loop (in the scans
 only, not in gt.ply).
 %s)",
-      o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, box_text, lidar.beams,
+      o.seed, lidar.elev_max_deg, kFrameRateHz, margin, kCityMeshTolerance, box_text,
+      moving ? R"(
+  gt_moving_last.ply   the walkers, crossers and passing cars as they stand at the last frame's
+                       time (binary PLY mesh, world frame): surfaces there at the end of the
+                       drive, though not in gt.ply.)"
+             : "",
+      lidar.beams,
       lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
       kSensorHeight, o.noise, o.frames, step, o.buildings.height_min, o.buildings.height_max,
       o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.features.balconies,

@@ -176,7 +176,8 @@ absl::Status RemovePreviousOutput(const std::string& dir) {
   if (fs::is_directory(velodyne, ec) && fs::is_empty(velodyne, ec)) fs::remove(velodyne, ec);
   return remove_matching(fs::path(dir), [](const std::string& n) {
     for (const char* fixed : {"poses.txt", "calib.txt", "times.txt", "camera-intrinsics.txt",
-                              "gt.ply", "gt_observed.ply", "scene.json", "README.txt"}) {
+                              "gt.ply", "gt_observed.ply", "gt_moving_last.ply", "scene.json",
+                              "README.txt"}) {
       if (n == fixed) return true;
     }
     if (n.rfind("frame-", 0) != 0 || !IsDigits(n, 6, 6)) return false;

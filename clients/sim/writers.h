@@ -58,7 +58,8 @@ absl::Status WriteIntrinsics(const std::string& path, const PinholeCamera& camer
 // Removes what an earlier rim_sim run may have left in `dir`, so that a shorter run or a run of
 // the other scene cannot leave an inconsistent dataset: velodyne/NNNNNN.bin (and velodyne/ itself
 // once empty), frame-NNNNNN.{depth.png,pose.txt,color.png}, and poses.txt, calib.txt, times.txt,
-// camera-intrinsics.txt, gt.ply, gt_observed.ply, scene.json, README.txt. Nothing else is touched.
+// camera-intrinsics.txt, gt.ply, gt_observed.ply, gt_moving_last.ply, scene.json, README.txt.
+// Nothing else is touched.
 absl::Status RemovePreviousOutput(const std::string& dir);
 
 }  // namespace rim::sim

@@ -3,7 +3,8 @@
 # crossing the street and cars passing in the other lane, and the same city without them. Each is
 # mapped offline with the filter on and off, and scored against the static ground truth inside the
 # union of the local boxes along the drive: floater share (mesh area beyond 20 cm of any true
-# surface), strict accuracy minus accuracy, C-L1, F-score, ms per frame and the filter's part of it
+# surface; ghosts: those also beyond 20 cm of what moves where the last scan saw it, rim_sim's
+# gt_moving_last.ply), strict accuracy minus accuracy, C-L1, F-score, ms per frame and the filter's part of it
 # (rim_map's "transient" stage). Prints one row per run
 # and writes them to OUT/moving_things.json.
 # Usage: tests/bench/moving_things.sh BUILD_DIR OUT_DIR [PRESET] [SEED ...]
@@ -45,8 +46,11 @@ for seed in "${SEEDS[@]}"; do
       run="$OUT/map_${seed}_${kind}_${PRESET}_$filter"
       "$BUILD/clients/rim_map" "$city" --preset "$PRESET" --out "$run" \
         --set transient.enabled=$filter ${MAP_ARGS[@]+"${MAP_ARGS[@]}"} > "$run.log" 2>&1
+      # What moves, where the last scan saw it: there at the end, so floaters there are no ghosts.
+      present=()
+      [ -f "$city/gt_moving_last.ply" ] && present=(--present "$city/gt_moving_last.ply")
       "$BUILD/clients/rim_eval" "$run/mesh.ply" "$city/gt.ply" --box 10,10,-3,3 --seq "$city" \
-        --json > "$run/eval_mesh.json"
+        ${present[@]+"${present[@]}"} --json > "$run/eval_mesh.json"
       "$BUILD/clients/rim_eval" "$run/mesh.ply" "$city/gt_observed.ply" --box 10,10,-3,3 \
         --seq "$city" --json > "$run/eval_observed.json"
       python3 - "$run" "$seed" "$kind" "$PRESET" "$filter" >> "$ROWS" <<'PY'
@@ -63,6 +67,7 @@ p, r = std["precision_pct"], obs["recall_pct"]
 print(json.dumps({
     "seed": int(seed), "city": kind, "preset": preset, "filter": filt == "true",
     "floater_pct": 100 * mesh["floater_share"], "floater_m2": mesh["floater_area_m2"],
+    "ghost_pct": 100 * mesh.get("ghost_share", mesh["floater_share"]),
     "acc_cm": std["accuracy_cm"], "strict_acc_cm": strict["accuracy_cm"],
     "c_l1_cm": c_l1, "f_pct": 2 * p * r / (p + r), "recall_pct": r,
     "ms_per_frame": timing["ms_per_frame"],
@@ -77,7 +82,7 @@ PY
 import json, sys
 r = json.loads(sys.stdin.read())
 print("seed %(seed)d %(city)-6s %(preset)-14s filter %(filter)-5s floaters %(floater_pct).3f %% "
-      "(%(floater_m2).1f m2)  strict-acc %(gap)+.2f cm  C-L1 %(c_l1_cm).3f  F %(f_pct).2f  "
+      "(%(floater_m2).1f m2), ghosts %(ghost_pct).3f %%  strict-acc %(gap)+.2f cm  C-L1 %(c_l1_cm).3f  F %(f_pct).2f  "
       "%(ms_per_frame).0f ms/frame (filter %(transient_ms).1f)  removed %(removed)s"
       % dict(r, filter=str(r["filter"]), gap=r["strict_acc_cm"] - r["acc_cm"]))'
     done

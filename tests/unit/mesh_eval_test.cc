@@ -702,6 +702,50 @@ TEST(MeshEvalFloaterTest, PointCloudPredictionCountsItsPoints) {
   EXPECT_EQ(r->floater_area_m2, 0.0);  // a point cloud has no area
 }
 
+// Surfaces present at the end (a person standing in the last scans) are floaters but no ghosts.
+TEST(MeshEvalFloaterTest, WhatIsPresentAtTheEndIsNoGhost) {
+  const Mesh gt = PlaneZ(0, 0, 4, 0, 4);  // 16 m^2
+  // Two 1 m^2 patches 50 cm up; the first stands where something was at the end.
+  const Mesh pred = Merged(Merged(gt, PatchZ(0.5f)), PlaneZ(0.5f, 3, 4, 3, 4));
+  EvalOptions options = SmallOptions();
+  options.crop_margin_m = 1.0;
+  const auto plain = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  EXPECT_FALSE(plain->has_present);
+  // Present 10 cm above the first patch: within the floater distance of it, so it is no ghost.
+  options.present = std::make_shared<const Mesh>(PlaneZ(0.6f, 1, 2, 1, 2));
+  const auto r = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_TRUE(r->has_present);
+  EXPECT_NEAR(r->floater_share, 2.0 / 18.0, 0.04 / 18.0);
+  EXPECT_NEAR(r->floater_area_m2, 2.0, 0.04);
+  EXPECT_NEAR(r->ghost_share, 1.0 / 18.0, 0.02 / 18.0);
+  EXPECT_NEAR(r->ghost_area_m2, 1.0, 0.02);
+  // Nothing else moves: the standard and strict measures are the plain run's.
+  EXPECT_EQ(r->floater_share, plain->floater_share);
+  EXPECT_EQ(r->strict.accuracy_m, plain->strict.accuracy_m);
+  EXPECT_EQ(r->standard.chamfer_l1_m, plain->standard.chamfer_l1_m);
+  // Present 30 cm away: beyond the floater distance, every floater is a ghost.
+  options.present = std::make_shared<const Mesh>(PlaneZ(0.8f, 1, 2, 1, 2));
+  const auto far = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(far.ok()) << far.status();
+  EXPECT_EQ(far->ghost_share, far->floater_share);
+  // As a point cloud (its points as they are), over both patches: no ghost at all.
+  Mesh cloud = GridCloudZ(0.5f, 1, 2, 1, 2, 0.01f);
+  AppendMesh(GridCloudZ(0.5f, 3, 4, 3, 4, 0.01f), &cloud);
+  options.present = std::make_shared<const Mesh>(cloud);
+  const auto points = EvaluateMeshes(pred, gt, options);
+  ASSERT_TRUE(points.ok()) << points.status();
+  EXPECT_EQ(points->ghost_share, 0.0);
+  // A bad one is named.
+  Mesh bad = PlaneZ(0.5f, 1, 2, 1, 2);
+  bad.vertices[0][0] = NAN;
+  options.present = std::make_shared<const Mesh>(bad);
+  const auto error = EvaluateMeshes(pred, gt, options);
+  EXPECT_EQ(error.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(error.status().message().find("present"), std::string::npos) << error.status();
+}
+
 TEST(MeshEvalFloaterTest, BadThresholdIsNamed) {
   const Mesh gt = PlaneZ(0, 0, 2, 0, 2);
   for (double bad : {-0.2, 0.0, static_cast<double>(NAN), static_cast<double>(INFINITY)}) {
@@ -884,6 +928,40 @@ TEST_F(RimEvalCliTest, ReportsFloaters) {
   EXPECT_NEAR(NumberAfter(r.out, line), 20.0, 0.4) << r.out;
   EXPECT_NE(r.out.find(" % of predicted area ("), std::string::npos) << r.out;
   EXPECT_NEAR(NumberAfter(r.out, " % of predicted area ("), 1.0, 0.02) << r.out;
+}
+
+TEST_F(RimEvalCliTest, ReportsGhostsBesideWhatIsPresent) {
+  const std::string floating = ::testing::TempDir() + "/rim_mesh_eval_floating2.ply";
+  const std::string present = ::testing::TempDir() + "/rim_mesh_eval_present.ply";
+  ASSERT_TRUE(WriteMeshPly(floating, Merged(PlaneZ(0.03f, 0, 2, 0, 2), PatchZ(0.5f))).ok());
+  ASSERT_TRUE(WriteMeshPly(present, PlaneZ(0.55f, 1, 2, 1, 2)).ok());
+  RunResult r = RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000 --present " +
+                           present);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  nlohmann::ordered_json j = ParseOut(r.out);
+  ASSERT_TRUE(j.is_object()) << r.out;
+  std::vector<std::string> keys = Keys(j);
+  ASSERT_GE(keys.size(), 5u);
+  EXPECT_EQ(std::vector<std::string>(keys.end() - 5, keys.end()),
+            (std::vector<std::string>{"floater_share", "floater_area_m2", "present",
+                                      "ghost_share", "ghost_area_m2"}))
+      << r.out;
+  EXPECT_NEAR(j["floater_share"].get<double>(), 0.2, 0.004) << r.out;
+  EXPECT_EQ(j["ghost_share"], 0.0) << r.out;
+  r = RunRimEval(floating + " " + gt_ + " --no-crop --samples 20000 --present " + present);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("Ghosts (floaters > 20 cm from " + present + " too): 0.00 % of predicted "
+                       "area (0.00 m^2)"),
+            std::string::npos)
+      << r.out;
+  // Without --present, no ghost keys.
+  r = RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_FALSE(ParseOut(r.out).contains("ghost_share")) << r.out;
+  // A missing file names the flag.
+  r = RunRimEval(floating + " " + gt_ + " --present /nonexistent/present.ply");
+  EXPECT_NE(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("--present"), std::string::npos) << r.out;
 }
 
 // A PLY with a vertex element only: no face element at all.

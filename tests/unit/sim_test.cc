@@ -546,8 +546,10 @@ TEST(SimCityTest, SameSeedSameBytesWhateverTheThreadCount) {
   ASSERT_TRUE(RunSim(a).ok());
   ASSERT_TRUE(RunSim(b).ok());
   const auto fa = ReadTree(a.out_dir), fb = ReadTree(b.out_dir);
-  // 3 scans, poses, calib, times, gt, gt_observed, scene.json, README
-  EXPECT_EQ(fa.size(), 3u + 7u);
+  // 3 scans, poses, calib, times, gt, gt_observed, gt_moving_last (walkers move), scene.json,
+  // README
+  EXPECT_EQ(fa.size(), 3u + 8u);
+  EXPECT_TRUE(fa.count("gt_moving_last.ply"));
   ASSERT_EQ(fa.size(), fb.size());
   for (const auto& [name, bytes] : fa) {
     ASSERT_TRUE(fb.count(name)) << name;
@@ -1656,6 +1658,53 @@ TEST(SimMovingTest, StaticSceneAndWalkersStayAsTheyWere) {
   EXPECT_NE(d.movers[0].s0, b.movers[0].s0);
 }
 
+// gt_moving_last.ply is what moves as the last scan saw it: with gt.ply it explains every return
+// of the last scan, and not those of the first (the cars and people have moved since).
+TEST(SimCityTest, TheMovingThingsOfTheLastScanAreWrittenApart) {
+  SimOptions o = SmallCity(TempDir("moving_last"));
+  o.frames = 12;
+  o.crossers = 4;
+  o.movers = 3;
+  o.walkers = 20;
+  ASSERT_TRUE(RunSim(o).ok());
+  const auto gt = ReadMeshPly(o.out_dir + "/gt.ply");
+  const auto last = ReadMeshPly(o.out_dir + "/gt_moving_last.ply");
+  ASSERT_TRUE(gt.ok() && last.ok()) << last.status();
+  ASSERT_GT(last->faces.size(), 100u);
+  const MeshDistance to_gt(*gt), to_last(*last);
+  const auto poses = ReadKittiPoses(o.out_dir + "/poses.txt");
+  // Returns off the static scene, and of those how many gt_moving_last.ply holds (noise-free: on
+  // the tessellated surfaces within their 5 mm tolerance). Within 25 m: gt.ply reaches 30 m
+  // (gt_margin) beyond the drive.
+  auto count = [&](int frame, int* off_static, int* on_last) {
+    *off_static = *on_last = 0;
+    for (const LidarPoint& lp : ReadScan(ScanPath(o.out_dir, frame))) {
+      if (Vec3(lp.x, lp.y, lp.z).norm() > 25.0) continue;
+      const Vec3 w = poses[frame] * Vec3(lp.x, lp.y, lp.z);
+      if (to_gt.Distance(w) < 0.01) continue;
+      ++*off_static;
+      *on_last += to_last.Distance(w) < 0.01;
+    }
+  };
+  int off_static = 0, on_last = 0;
+  count(o.frames - 1, &off_static, &on_last);
+  EXPECT_GT(off_static, 100) << "the last scan sees nothing moving: the test proves nothing";
+  EXPECT_EQ(on_last, off_static);
+  count(0, &off_static, &on_last);
+  EXPECT_GT(off_static, 100);
+  EXPECT_LT(on_last, off_static / 2) << "the file holds the first scan's movers, not the last's";
+  nlohmann::ordered_json scene = ReadScene(o.out_dir);
+  EXPECT_EQ(scene["gt_moving_last"]["file"], "gt_moving_last.ply");
+  EXPECT_DOUBLE_EQ(scene["gt_moving_last"]["time_s"].get<double>(), 1.1);
+  EXPECT_EQ(scene["gt_moving_last"]["faces"], last->faces.size());
+  EXPECT_NE(ReadFile(o.out_dir + "/README.txt").find("gt_moving_last.ply"), std::string::npos);
+  // A static city written over it leaves no stale file.
+  o.crossers = o.movers = o.walkers = 0;
+  ASSERT_TRUE(RunSim(o).ok());
+  EXPECT_FALSE(std::filesystem::exists(o.out_dir + "/gt_moving_last.ply"));
+  EXPECT_FALSE(ReadScene(o.out_dir).contains("gt_moving_last"));
+}
+
 TEST(SimMovingTest, OptionsAreValidatedNamingTheField) {
   const std::vector<std::pair<std::function<void(CityOptions*)>, std::string>> cases = {
       {[](CityOptions* o) { o->crossers = -1; }, "CityOptions.crossers must be >= 0, got -1"},
@@ -1749,7 +1798,8 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   EXPECT_EQ(Keys(scene), (std::vector<std::string>{
                              "generator", "scene", "layout", "seed", "frames", "step_m",
                              "frame_rate_hz", "noise_stddev_m", "walkers", "crossers", "movers",
-                             "buildings", "features", "lidar", "poses", "gt_mesh", "gt_observed"}));
+                             "buildings", "features", "lidar", "poses", "gt_mesh", "gt_observed",
+                             "gt_moving_last"}));
   nlohmann::ordered_json& crosser_json = scene["crossers"];
   EXPECT_EQ(Keys(crosser_json),
             (std::vector<std::string>{"count", "in", "motion", "shape", "list"}));

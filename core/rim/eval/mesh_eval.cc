@@ -545,6 +545,45 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
   result.floater_share =
       static_cast<double>(floater_samples) / static_cast<double>(result.pred_samples);
   result.floater_area_m2 = static_cast<double>(floater_samples) * pred_area_per_sample;
+  if (options.present != nullptr) {
+    // The surfaces present at the end, sampled as densely as the prediction was (a point cloud
+    // as it is), and the floaters' distance to them.
+    std::vector<Point3f> present_points;
+    if (IsPointCloud(*options.present)) {
+      RIM_ASSIGN_OR_RETURN(present_points, ToPoints(*options.present, "present"));
+    } else {
+      RIM_ASSIGN_OR_RETURN(std::vector<Triangle> tris, ToTriangles(*options.present, "present"));
+      double area = 0;
+      for (const Triangle& t : tris) area += TriangleArea(t);
+      const double density =
+          result.pred_kind == InputKind::kMesh && result.pred_area_m2 > 0
+              ? static_cast<double>(options.samples) / result.pred_area_m2
+              : 1e4;  // a sample a square centimetre
+      const int64_t want = static_cast<int64_t>(std::ceil(std::max(density, 1e4) * area));
+      double unused = 0;
+      present_points = SampleTriangles(tris, want, options.seed, 2, threads, &unused);
+    }
+    std::vector<Point3f> floating;
+    std::vector<uint32_t> floating_counts;
+    for (size_t i = 0; i < pred_to_gt.size(); ++i) {
+      if (pred_to_gt[i] <= options.floater_m) continue;
+      floating.push_back(pred_points[i]);
+      floating_counts.push_back(pred_counts[i]);
+    }
+    int64_t ghost_samples = 0;
+    if (!present_points.empty()) {
+      const NearestNeighbors present_index(std::move(present_points));
+      const std::vector<float> to_present = present_index.NearestDistances(floating, threads);
+      for (size_t k = 0; k < floating.size(); ++k)
+        if (to_present[k] > options.floater_m) ghost_samples += floating_counts[k];
+    } else {
+      for (uint32_t c : floating_counts) ghost_samples += c;
+    }
+    result.has_present = true;
+    result.ghost_share =
+        static_cast<double>(ghost_samples) / static_cast<double>(result.pred_samples);
+    result.ghost_area_m2 = static_cast<double>(ghost_samples) * pred_area_per_sample;
+  }
   if (options.keep_outliers) {
     for (size_t i = 0; i < gt_to_pred.size(); ++i) {
       if (gt_to_pred[i] > options.fscore_m) {

@@ -56,6 +56,11 @@ struct EvalOptions {
   // When set, EvalResult lists the GT points farther than fscore_m from the prediction (the
   // misses) and the prediction points farther than floater_m from the GT (the floaters).
   bool keep_outliers = false;
+  // When set: surfaces there at the end though the GT leaves them out, such as rim_sim's
+  // gt_moving_last.ply (the people and cars where the last scan saw them). A floater within
+  // floater_m of them is something a mapper could not know would go; EvalResult's ghost share
+  // counts the other floaters. A mesh or a point cloud; it changes no other measure.
+  std::shared_ptr<const Mesh> present;
 };
 
 // Fractions are in [0, 1]; distances in metres.
@@ -93,6 +98,11 @@ struct EvalResult {
   // given, after cropping) and the area 0.
   double floater_share = 0;
   double floater_area_m2 = 0;
+  // With EvalOptions::present: the floaters also farther than floater_m from it (the ghosts), as
+  // a share of the prediction and an area, like the floaters'.
+  bool has_present = false;
+  double ghost_share = 0;
+  double ghost_area_m2 = 0;
   // With EvalOptions::keep_outliers: the voxel-averaged points, each with its distance to the
   // other side, in voxel-key order.
   struct OutlierPoint {
