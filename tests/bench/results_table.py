@@ -386,6 +386,7 @@ BASELINE = "2026-11-22-default.json"
 MEMORY = "2026-11-24-memory.json"
 LONG500 = "2026-11-22-long500-half.maicity_online.csv"
 MOVING = "2026-11-28-moving-things-earlier.json"
+GHOSTS = "2026-12-02-moving-ghosts.json"
 TRANSIENT_COST = "2026-11-29-transient-window.json"
 CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
@@ -584,6 +585,16 @@ TABLES = {
                 r.values(MOVING, "floater_pct", city="moving", filter=True, earlier=False,
                          streamed=False), digits=2),
             ("≤ 0.1", ("<=", 0.1)), [MOVING]),
+        Row("floaters, filter on, the build of 2026-12-02: fresh seeds 766–768 and 701–703 "
+            "again, `maicity` and `maicity_online`, %",
+            lambda r: r.values(GHOSTS, "floater_pct"), F3, "–", ("≤ 0.1", ("<=", 0.1)),
+            [GHOSTS]),
+        Row("ghosts: those floaters also beyond 20 cm of what moves, where the last scan saw it "
+            "(`rim_eval --present gt_moving_last.ply`), %",
+            lambda r: r.values(GHOSTS, "ghost_pct"), F3,
+            lambda r: "the same runs' floaters: " + fmt_range(r.values(GHOSTS, "floater_pct"),
+                                                               digits=3),
+            ("≤ 0.1", ("<=", 0.1)), [GHOSTS]),
         Row("floaters, filter on, streamed at 10 Hz through `rim_server`, %",
             lambda r: r.values(MOVING, "floater_pct", city="moving", filter=True, earlier=True,
                                streamed=True), F2, "–", ("≤ 0.1", ("<=", 0.1)), [MOVING]),
