@@ -173,6 +173,8 @@ def _match(run, key, want):
     if key == "benchmark":
         name = run.get("benchmark", "")
         return name == want or name.startswith(want + "/")
+    if isinstance(want, list):  # any of them
+        return _get(run, key) in want
     return _get(run, key) == want
 
 
@@ -387,6 +389,7 @@ MEMORY = "2026-11-24-memory.json"
 LONG500 = "2026-11-22-long500-half.maicity_online.csv"
 MOVING = "2026-11-28-moving-things-earlier.json"
 GHOSTS = "2026-12-02-moving-ghosts.json"
+PLANNER_RICH = "2026-12-02-planner-rich.json"
 TRANSIENT_COST = "2026-11-29-transient-window.json"
 CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
@@ -616,6 +619,15 @@ TABLES = {
             lambda r: "the build before: " + fmt_range(
                 r.values(CROSSINGS, "too_near", build="before"), digits=0), ("0", ("<=", 0)),
             [CROSSINGS]),
+        Row("the same on rim_sim's default rich city (rows of cars at the kerb), held-out seeds "
+            "767 and 769–771 offline, 766 and 767 streamed, %",
+            lambda r: r.values(PLANNER_RICH, "within_5cm_pct", mode=["offline", "streamed"]), F1,
+            lambda r: "seed 767 without movers, same points: " + fmt_range(
+                r.values(PLANNER_RICH, "within_5cm_pct", mode="static city, same points")),
+            ("≥ 95", (">=", 95)), [PLANNER_RICH]),
+        Row("the same, points more than 10 cm too near",
+            lambda r: r.values(PLANNER_RICH, "too_near", mode=["offline", "streamed"]),
+            {"digits": 0}, "–", ("0", ("<=", 0)), [PLANNER_RICH]),
         Row("a `maicity_online` frame with the filter, above the same without it, alternating, %",
             lambda r: [100 * (p["on_ms"] / p["off_ms"] - 1)
                        for p in r.runs(TRANSIENT_COST, kind="pair", build="after")],
