@@ -475,12 +475,11 @@ only, not in gt.ply).
                        time (binary PLY mesh, world frame): surfaces there at the end of the
                        drive, though not in gt.ply.)"
              : "",
-      lidar.beams,
-      lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range, lidar.max_range,
-      kSensorHeight, o.noise, o.frames, step, o.buildings.height_min, o.buildings.height_max,
-      o.buildings.setback_min, o.buildings.setback_max, kFrontage, o.features.balconies,
-      o.features.annexes, o.features.yawed, o.features.parked_cars, o.features.canopies, o.walkers,
-      MovingText(city));
+      lidar.beams, lidar.elev_max_deg, lidar.elev_min_deg, lidar.columns, lidar.min_range,
+      lidar.max_range, kSensorHeight, o.noise, o.frames, step, o.buildings.height_min,
+      o.buildings.height_max, o.buildings.setback_min, o.buildings.setback_max, kFrontage,
+      o.features.balconies, o.features.annexes, o.features.yawed, o.features.parked_cars,
+      o.features.canopies, o.walkers, MovingText(city));
   RIM_RETURN_IF_ERROR(WriteTextFile(Join(o.out_dir, "README.txt"), readme));
   summary.frames = o.frames;
   return summary;

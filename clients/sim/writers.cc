@@ -175,9 +175,9 @@ absl::Status RemovePreviousOutput(const std::string& dir) {
   std::error_code ec;
   if (fs::is_directory(velodyne, ec) && fs::is_empty(velodyne, ec)) fs::remove(velodyne, ec);
   return remove_matching(fs::path(dir), [](const std::string& n) {
-    for (const char* fixed : {"poses.txt", "calib.txt", "times.txt", "camera-intrinsics.txt",
-                              "gt.ply", "gt_observed.ply", "gt_moving_last.ply", "scene.json",
-                              "README.txt"}) {
+    for (const char* fixed :
+         {"poses.txt", "calib.txt", "times.txt", "camera-intrinsics.txt", "gt.ply",
+          "gt_observed.ply", "gt_moving_last.ply", "scene.json", "README.txt"}) {
       if (n == fixed) return true;
     }
     if (n.rfind("frame-", 0) != 0 || !IsDigits(n, 6, 6)) return false;

@@ -935,22 +935,23 @@ TEST_F(RimEvalCliTest, ReportsGhostsBesideWhatIsPresent) {
   const std::string present = ::testing::TempDir() + "/rim_mesh_eval_present.ply";
   ASSERT_TRUE(WriteMeshPly(floating, Merged(PlaneZ(0.03f, 0, 2, 0, 2), PatchZ(0.5f))).ok());
   ASSERT_TRUE(WriteMeshPly(present, PlaneZ(0.55f, 1, 2, 1, 2)).ok());
-  RunResult r = RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000 --present " +
-                           present);
+  RunResult r =
+      RunRimEval(floating + " " + gt_ + " --json --no-crop --samples 20000 --present " + present);
   ASSERT_EQ(r.exit_code, 0) << r.out;
   nlohmann::ordered_json j = ParseOut(r.out);
   ASSERT_TRUE(j.is_object()) << r.out;
   std::vector<std::string> keys = Keys(j);
   ASSERT_GE(keys.size(), 5u);
   EXPECT_EQ(std::vector<std::string>(keys.end() - 5, keys.end()),
-            (std::vector<std::string>{"floater_share", "floater_area_m2", "present",
-                                      "ghost_share", "ghost_area_m2"}))
+            (std::vector<std::string>{"floater_share", "floater_area_m2", "present", "ghost_share",
+                                      "ghost_area_m2"}))
       << r.out;
   EXPECT_NEAR(j["floater_share"].get<double>(), 0.2, 0.004) << r.out;
   EXPECT_EQ(j["ghost_share"], 0.0) << r.out;
   r = RunRimEval(floating + " " + gt_ + " --no-crop --samples 20000 --present " + present);
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  EXPECT_NE(r.out.find("Ghosts (floaters > 20 cm from " + present + " too): 0.00 % of predicted "
+  EXPECT_NE(r.out.find("Ghosts (floaters > 20 cm from " + present +
+                       " too): 0.00 % of predicted "
                        "area (0.00 m^2)"),
             std::string::npos)
       << r.out;

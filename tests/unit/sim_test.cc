@@ -1795,11 +1795,11 @@ TEST(SimCityTest, CrossersAndMoversAppearInScansButNotInGroundTruth) {
   // scene.json and README.txt describe them.
   nlohmann::ordered_json scene = ReadScene(with.out_dir);
   // They come after the walkers and before the buildings.
-  EXPECT_EQ(Keys(scene), (std::vector<std::string>{
-                             "generator", "scene", "layout", "seed", "frames", "step_m",
-                             "frame_rate_hz", "noise_stddev_m", "walkers", "crossers", "movers",
-                             "buildings", "features", "lidar", "poses", "gt_mesh", "gt_observed",
-                             "gt_moving_last"}));
+  EXPECT_EQ(Keys(scene),
+            (std::vector<std::string>{"generator", "scene", "layout", "seed", "frames", "step_m",
+                                      "frame_rate_hz", "noise_stddev_m", "walkers", "crossers",
+                                      "movers", "buildings", "features", "lidar", "poses",
+                                      "gt_mesh", "gt_observed", "gt_moving_last"}));
   nlohmann::ordered_json& crosser_json = scene["crossers"];
   EXPECT_EQ(Keys(crosser_json),
             (std::vector<std::string>{"count", "in", "motion", "shape", "list"}));

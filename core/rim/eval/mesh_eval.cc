@@ -555,10 +555,9 @@ absl::StatusOr<EvalResult> EvaluateMeshes(const Mesh& pred, const Mesh& gt,
       RIM_ASSIGN_OR_RETURN(std::vector<Triangle> tris, ToTriangles(*options.present, "present"));
       double area = 0;
       for (const Triangle& t : tris) area += TriangleArea(t);
-      const double density =
-          result.pred_kind == InputKind::kMesh && result.pred_area_m2 > 0
-              ? static_cast<double>(options.samples) / result.pred_area_m2
-              : 1e4;  // a sample a square centimetre
+      const double density = result.pred_kind == InputKind::kMesh && result.pred_area_m2 > 0
+                                 ? static_cast<double>(options.samples) / result.pred_area_m2
+                                 : 1e4;  // a sample a square centimetre
       const int64_t want = static_cast<int64_t>(std::ceil(std::max(density, 1e4) * area));
       double unused = 0;
       present_points = SampleTriangles(tris, want, options.seed, 2, threads, &unused);
