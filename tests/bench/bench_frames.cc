@@ -4,8 +4,10 @@
 // benchmark iteration is the next frame, Options().measured_frames of them. Wall time is ms per
 // frame; the counters are the mapper's own StageTimings, ms per frame.
 //
-// Stage/Slide, Stage/Preprocess: the same frames at maicity_online, each benchmark's time the
-// one stage's (manual time), so that its median and spread are reported on their own.
+// Stage/Slide, Stage/Preprocess, Stage/Transient: the same frames at maicity_online, each
+// benchmark's time the one stage's (manual time), so that its median and spread are reported on
+// their own. Stage/RangeImage: the moving-things filter's range image of each frame's scan alone
+// (RangeImage::Fill over two threads), with no mapper.
 //
 // Sequence/PRESET (long mode only): the whole sequence from an empty map, with resident memory
 // and sub-map bytes recorded every frame (counters every 10 frames, all frames in the CSV).
@@ -19,6 +21,8 @@
 #include <vector>
 
 #include "bench/bench_common.h"
+#include "rim/base/worker_pool.h"
+#include "rim/train/transient.h"
 
 namespace rim::bench {
 namespace {
@@ -85,7 +89,7 @@ void BM_Frame(benchmark::State& state, const std::string& preset,
 // training iterations, each timed on its own (manual time) while the mapper runs whole frames as
 // Frame/ does. The distance field is refreshed every query.refresh_frames frames, so Refresh's
 // time is the refresh's cost per frame on average (zero on the frames between refreshes).
-enum class FrameStage { kSlide, kPreprocess, kRefresh };
+enum class FrameStage { kSlide, kPreprocess, kTransient, kRefresh };
 
 void BM_FrameStage(benchmark::State& state, const std::string& preset,
                    const std::vector<std::string>& overrides, FrameStage stage, CityKind city) {
@@ -94,9 +98,31 @@ void BM_FrameStage(benchmark::State& state, const std::string& preset,
       [&](const StageTimings& t) {
         state.SetIterationTime(stage == FrameStage::kSlide        ? t.slide_s
                                : stage == FrameStage::kPreprocess ? t.preprocess_s
+                               : stage == FrameStage::kTransient  ? t.transient_s
                                                                   : t.distance_s);
       },
       city);
+}
+
+// The range image that the moving-things filter judges against, filled from each frame's scan in
+// turn with the preset's settings, on a pool of two threads as a mapper's trainer pool.
+void BM_RangeImage(benchmark::State& state) {
+  const std::vector<PosedScan>& frames = CitySequence();
+  const MapperConfig config = Preset("maicity_online");
+  const TransientConfig& c = config.transient;
+  RangeImage image(c.bin_deg);
+  RangeImage::Scratch scratch;
+  WorkerPool pool(2);
+  size_t k = 0, points = 0;
+  for (auto _ : state) {
+    const PosedScan& scan = frames[k++ % frames.size()];
+    image.Fill(scan.points_S, config.buffer.min_range_m, config.buffer.max_range_m, &pool,
+               c.fired_row_share, &scratch);
+    points += scan.points_S.size();
+    benchmark::DoNotOptimize(image.rows());
+  }
+  state.counters["points"] = benchmark::Counter(double(points), benchmark::Counter::kAvgIterations);
+  state.counters["rows"] = double(image.rows());
 }
 
 void BM_Sequence(benchmark::State& state, const std::string& preset) {
@@ -168,13 +194,18 @@ void RegisterFrameBenchmarks() {
 void RegisterFrameStageBenchmarks() {
   // The box moves with the robot at every preset's speed the same way: one preset is enough.
   for (const auto& [name, stage] : {std::pair{"Stage/Slide", FrameStage::kSlide},
-                                    std::pair{"Stage/Preprocess", FrameStage::kPreprocess}}) {
+                                    std::pair{"Stage/Preprocess", FrameStage::kPreprocess},
+                                    std::pair{"Stage/Transient", FrameStage::kTransient}}) {
     benchmark::RegisterBenchmark(name, BM_FrameStage, std::string("maicity_online"),
                                  std::vector<std::string>{}, stage, CityKind::kDefault)
         ->Iterations(Options().measured_frames)
         ->Unit(benchmark::kMillisecond)
         ->UseManualTime();
   }
+  benchmark::RegisterBenchmark("Stage/RangeImage", BM_RangeImage)
+      ->Iterations(20 * Options().measured_frames)
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
   // The refresh on the far-return city at the floor a loaded server trains at (3 iterations a
   // frame), where it is the largest stage of a frame; twice measured_frames after the warm-up (by
   // default 40 frames and 4 refreshes with query.refresh_frames = 10; measured_frames holds 2).
