@@ -52,6 +52,36 @@ TEST(WorkerPoolTest, BackToBackRegionsWithOrderedWaitsAndLateWorkers) {
   }
 }
 
+// Regions that come a while apart, so that the workers have gone to sleep on the condition
+// variable and must be woken for each, and tasks long enough that the caller sleeps for a
+// worker's last task. Every task once, every time.
+TEST(WorkerPoolTest, RegionsAfterPausesAndLongTasks) {
+  WorkerPool pool(3);
+  for (int round = 0; round < 60; ++round) {
+    const int tasks = 2 + round % 5;
+    std::vector<std::atomic<int>> runs(static_cast<size_t>(tasks));
+    pool.Run(tasks, [&](int i) {
+      if (round % 3 == 1) std::this_thread::sleep_for(std::chrono::microseconds(300));
+      runs[size_t(i)].fetch_add(1);
+    });
+    for (int i = 0; i < tasks; ++i) ASSERT_EQ(runs[size_t(i)].load(), 1) << round << " " << i;
+    if (round % 3 == 2) std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+}
+
+// Pools made and dropped around a region each, as ParallelFor does per query: the destructor
+// stops workers that may not even have woken for the region yet.
+TEST(WorkerPoolTest, PoolsDroppedRightAfterARegion) {
+  for (int round = 0; round < 300; ++round) {
+    std::atomic<int> sum{0};
+    {
+      WorkerPool pool(2 + round % 3);
+      pool.Run(4, [&](int i) { sum.fetch_add(i + 1); });
+    }
+    ASSERT_EQ(sum.load(), 10) << round;
+  }
+}
+
 TEST(WorkerPoolTest, TasksRunOnSeveralThreads) {
   WorkerPool pool(2);
   std::mutex mu;
