@@ -29,21 +29,25 @@ for _ in $(seq 1 600); do
   sleep 0.1
 done
 [ -n "$ADDR" ] || { cat "${RIM_SERVER_LOG:-$WORK/log}" >&2; exit 1; }
-# Keeps every scrape that holds the load's sessions (their families go when they close); the
-# newest is last_scrape.
 # The scrape is bash's own HTTP/1.0 request (no chunked body), not a python3 or curl process a
 # second: on a 2-core host a python3 start a second (0.12-0.17 s of CPU through a pyenv shim) took
-# a sixth of a core from the server it measured.
+# a sixth of a core from the server it measured. A server that stops answering costs one scrape
+# (5 s), not the loop.
 scrape() {  # http://HOST:PORT/metrics FILE
   local hostport="${1#http://}"
   hostport="${hostport%%/*}"
   local host="${hostport%:*}" port="${hostport##*:}"
   exec 3<> "/dev/tcp/$host/$port" || return 1
   printf 'GET /metrics HTTP/1.0\r\nHost: %s\r\n\r\n' "$host" >&3
-  cat <&3 > "$2"
+  if ! timeout 5 cat <&3 > "$2"; then
+    exec 3<&-
+    return 1
+  fi
   exec 3<&-
   grep -q '^HTTP/1\.[01] 200' "$2"
 }
+# Keeps every scrape that holds the load's sessions (their families go when they close); the
+# newest is last_scrape.
 (
   n=0
   while sleep 1; do
