@@ -463,6 +463,56 @@ TEST_F(DistanceFieldTest, ReturnsStandForSurfaceTheSurfelsLack) {
   EXPECT_EQ(field_.Stats().returns, 0);
 }
 
+// A query for distances alone searches a tighter bound than one with the gradient (no ring of
+// disks to blend): it must read the same distances, signs and saturation flags, bit for bit, over
+// floors, a box's edges and corners, scattered tilted surfels, returns, and points beside and far
+// from all of them.
+TEST_F(DistanceFieldTest, DistancesAloneEqualThoseReadWithTheGradient) {
+  field_.SetReturnsBlendRadius(0.1f);
+  const Int3 key(0, 0, 0);
+  std::vector<Surfel> surfels = Floor(key, 0.f, 1.f, 12.f, 1.f, 9.f);
+  for (const Surfel& s : Floor(key, 0.8f, 4.f, 6.f, 3.f, 5.f)) surfels.push_back(s);  // a box top
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> ux(1.f, 12.f), uy(1.f, 9.f), uz(0.f, 2.f), un(-1.f, 1.f);
+  for (int i = 0; i < 300; ++i) {
+    const Vec3f n = Vec3f(un(rng), un(rng), un(rng)).normalized();
+    const float p[3] = {ux(rng), uy(rng), uz(rng)};
+    const double leaf = geometry_.leaf_m();
+    const Int3 g(int(std::floor(p[0] / leaf)), int(std::floor(p[1] / leaf)),
+                 int(std::floor(p[2] / leaf)));
+    surfels.push_back({{p[0], p[1], p[2]}, {n.x(), n.y(), n.z()}, field_.VoxelIndex(key, g)});
+  }
+  std::sort(surfels.begin(), surfels.end(),
+            [](const Surfel& a, const Surfel& b) { return a.voxel < b.voxel; });
+  field_.Replace(key, {}, surfels);
+  field_.ReplaceReturns(key, Wall(12.4f, 1.f, 9.f, 0.1f, 4.1f));
+  std::uniform_real_distribution<float> qx(-1.f, 15.f), qy(-1.f, 11.f), qz(-1.f, 4.f);
+  std::vector<float> xyz;
+  std::vector<uint8_t> with_returns;
+  for (int i = 0; i < 20000; ++i) {
+    xyz.insert(xyz.end(), {qx(rng), qy(rng), qz(rng)});
+    with_returns.push_back(uint8_t(i % 3 != 0));
+  }
+  const size_t n = xyz.size() / 3;
+  for (float max_d : {2.f, 0.5f}) {
+    std::vector<float> with_g(n), alone(n), grad(3 * n);
+    std::vector<uint8_t> sat_g(n), sat_alone(n);
+    field_.Query(xyz.data(), n, max_d, with_g.data(), grad.data(), sat_g.data(),
+                 with_returns.data());
+    field_.Query(xyz.data(), n, max_d, alone.data(), nullptr, sat_alone.data(),
+                 with_returns.data());
+    int differ = 0, saturated = 0;
+    for (size_t i = 0; i < n; ++i) {
+      differ += with_g[i] != alone[i] || sat_g[i] != sat_alone[i];
+      saturated += sat_alone[i];
+    }
+    EXPECT_EQ(differ, 0) << "max distance " << max_d;
+    // Both kinds of point are there: some read a surface, some the bound.
+    EXPECT_GT(saturated, 100);
+    EXPECT_LT(saturated, int(n) - 100);
+  }
+}
+
 TEST(QueryConfigTest, BadMaxDistanceIsRefusedByName) {
   for (const char* bad :
        {"query.max_distance_m=0", "query.max_distance_m=-1", "query.max_distance_m=nan",

@@ -60,9 +60,12 @@ inline float BlendWidth(float best, float r) {
   return std::max(0.f, std::min({kBlend, 0.1f * best, 3.f * r * r / best}));
 }
 
-// A nanoflann result set that keeps the nearest disk, and the disks within the blend width of the
-// best distance seen so far (for the gradient): a surfel whose centre lies farther than that limit
-// plus the disk radius can hold neither, which bounds the search.
+// A nanoflann result set that keeps the nearest disk, and (kGradient) the disks within the blend
+// width of the best distance seen so far, for the gradient: a surfel whose centre lies farther
+// than that limit plus the disk radius can hold neither, which bounds the search. Without the
+// gradient the limit is the best distance itself: a query for distances alone visits only the
+// disks that could be nearer, not the ring of those the gradient would blend.
+template <bool kGradient>
 struct NearestDisk {
   static constexpr int kKeep = 16;
   const Surfel* surfels;
@@ -74,7 +77,7 @@ struct NearestDisk {
   int kept = 0;
   std::array<std::pair<float, uint32_t>, kKeep> near{};
   // Disks at or beyond this distance matter neither for the value nor for the gradient.
-  float Limit() const { return best + BlendWidth(best, rb); }
+  float Limit() const { return kGradient ? best + BlendWidth(best, rb) : best; }
   float worstDist() const {
     const float w = Limit() + r;
     return w * w;
@@ -86,6 +89,7 @@ struct NearestDisk {
       best = d;
       index = i;
     }
+    if constexpr (!kGradient) return true;
     const float limit = Limit();
     if (d < limit) {
       if (kept == kKeep) {  // drop those the best has left behind, then the farthest
@@ -254,27 +258,33 @@ void DistanceField::Query(const float* xyz, size_t n, float max_distance_m, floa
       const float d = DiskDistance(*previous, q, previous_part->radius);
       if (d < best) best = d, nearest = previous, nearest_part = previous_part;
     }
-    // Disks within kBlend of the nearest, over every part searched.
-    std::array<Near, 2 * NearestDisk::kKeep> near;
+    // Disks within kBlend of the nearest, over every part searched (for the gradient only: a
+    // query for distances alone searches the nearest disk's bound, which is tighter).
+    std::array<Near, 2 * NearestDisk<true>::kKeep> near;
     int kept = 0;
     for (size_t k = 0; k < m; ++k) {
       const Part& part = *order[k].part;
       const int rank = order[k].rank;
-      const float bound = best + BlendWidth(best, part.blend) + part.radius;
+      const float bound = best + (gradient ? BlendWidth(best, part.blend) : 0.f) + part.radius;
       if (order[k].d2 >= bound * bound) {  // the rest of this rank lies farther still
         while (k + 1 < m && order[k + 1].rank == rank) ++k;
         continue;
       }
       if (rank == 2 && bound <= Part::kNearCell) continue;
-      NearestDisk search{part.surfels.data(), q, part.radius, part.blend, best};
-      part.tree.findNeighbors(search, q, nanoflann::SearchParams());
-      if (search.index >= 0) {
-        best = search.best;
-        nearest = &part.surfels[size_t(search.index)];
-        nearest_part = &part;
-      }
-      for (int j = 0; j < search.kept && kept < int(near.size()); ++j)
-        near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second], &part};
+      auto search_part = [&](auto&& search) {
+        part.tree.findNeighbors(search, q, nanoflann::SearchParams());
+        if (search.index >= 0) {
+          best = search.best;
+          nearest = &part.surfels[size_t(search.index)];
+          nearest_part = &part;
+        }
+        for (int j = 0; j < search.kept && kept < int(near.size()); ++j)
+          near[kept++] = {search.near[j].first, &part.surfels[search.near[j].second], &part};
+      };
+      if (gradient)
+        search_part(NearestDisk<true>{part.surfels.data(), q, part.radius, part.blend, best});
+      else
+        search_part(NearestDisk<false>{part.surfels.data(), q, part.radius, part.blend, best});
     }
     previous = nearest;
     previous_part = nearest_part;
