@@ -331,6 +331,9 @@ FAR = "2026-11-27-frame-far.json"
 REFRESH = "2026-11-27-rim-map-refresh.json"
 QUERY = "2026-12-01-query.json"
 QUERY_HOST_B = "2026-11-26-query.json"
+# Distance-only queries searching the nearest disk's bound (3767812), and the build before.
+QUERY_NOW = "2026-12-02-query-distance-only.json"
+QUERY_AFTER, QUERY_BEFORE = "3767812", "2167a2d"
 STREAMED = "2026-11-27-streamed-city.json"
 HELDOUT = "2026-11-24-held-out-quality.json"
 REFERENCE = "2026-11-22-reference-trainer.json"
@@ -341,6 +344,7 @@ LOAD_BUDGET = "2026-12-01-load-budget.json"
 BUDGET_BUILDS = ("81d12d6", "31bb540")  # the meshing budget's default at a tenth of the cores
 LOAD_WATCHER = "2026-12-01-load-watcher.json"  # the 0.2 m watcher before and after 307337a
 WATCHER_AFTER, WATCHER_BEFORE = ("307337a",), ("b45976d",)
+LOAD_NOW = "2026-12-02-load-distance-only.json"  # before and after distance-only queries
 
 
 def load_percent(results, resolution_m, build=BUDGET_BUILDS, cores=None, name=LOAD_BUDGET):
@@ -422,21 +426,41 @@ TABLES = {
             "–", None, [REFRESH]),
         Row("distance queries, 1M points, distance only, M points/s",
             lambda r: [1e9 / v for v in r.values(
-                QUERY, "real_time", benchmark="Query/points:1000000/gradient:0/neural:0")],
+                QUERY_NOW, "real_time", benchmark="Query/points:1000000/gradient:0/neural:0",
+                build=QUERY_AFTER)],
             {"digits": 2, "scale": 1e-6},
-            lambda r: "host B (slower), 2026-11-26: " + fmt_range(
-                [1e3 / v for v in r.values(QUERY_HOST_B, "real_time",
+            lambda r: "the build before, same runs: " + fmt_range(
+                [1e3 / v for v in r.values(QUERY_NOW, "real_time",
+                                           benchmark="Query/points:1000000/gradient:0/neural:0",
+                                           build=QUERY_BEFORE)], digits=2)
+            + "; host D, 2026-12-01: " + fmt_range(
+                [1e3 / v for v in r.values(QUERY, "real_time",
                                            benchmark="Query/points:1000000/gradient:0/neural:0")],
                 digits=2),
-            ("≥ 1", (">=", 1e6)), [QUERY, QUERY_HOST_B]),
-        Row("distance queries where a planner asks (`QueryPlanner`, 100k points), M points/s",
-            lambda r: [1e8 / v for v in r.values(QUERY, "real_time",
-                                                  benchmark="QueryPlanner/neural:0")],
+            ("≥ 1", (">=", 1e6)), [QUERY_NOW, QUERY]),
+        Row("the same with the gradient, M points/s",
+            lambda r: [1e9 / v for v in r.values(
+                QUERY_NOW, "real_time", benchmark="Query/points:1000000/gradient:1/neural:0",
+                build=QUERY_AFTER)],
             {"digits": 2, "scale": 1e-6},
-            lambda r: "host B (slower), 2026-11-26: " + fmt_range(
-                [1e2 / v for v in r.values(QUERY_HOST_B, "real_time",
+            lambda r: "the build before, same runs: " + fmt_range(
+                [1e3 / v for v in r.values(QUERY_NOW, "real_time",
+                                           benchmark="Query/points:1000000/gradient:1/neural:0",
+                                           build=QUERY_BEFORE)], digits=2),
+            None, [QUERY_NOW]),
+        Row("distance queries where a planner asks (`QueryPlanner`, 100k points), M points/s",
+            lambda r: [1e8 / v for v in r.values(QUERY_NOW, "real_time",
+                                                  benchmark="QueryPlanner/neural:0",
+                                                  build=QUERY_AFTER)],
+            {"digits": 2, "scale": 1e-6},
+            lambda r: "the build before, same runs: " + fmt_range(
+                [1e2 / v for v in r.values(QUERY_NOW, "real_time",
+                                           benchmark="QueryPlanner/neural:0",
+                                           build=QUERY_BEFORE)], digits=2)
+            + "; host D, 2026-12-01: " + fmt_range(
+                [1e2 / v for v in r.values(QUERY, "real_time",
                                            benchmark="QueryPlanner/neural:0")], digits=2),
-            None, [QUERY, QUERY_HOST_B]),
+            None, [QUERY_NOW, QUERY]),
     ],
     "quality": [
         Row("C-L1 offline, `maicity`, held-out cities 211, 223, 227, 229, cm",
@@ -479,10 +503,12 @@ TABLES = {
     "load": [
         Row("target load, the dashboard at 0.2 m (its default): rays trained per frame period, % "
             "of the robot alone in the same run",
-            lambda r: load_percent(r, 0.2, WATCHER_AFTER, name=LOAD_WATCHER), {"digits": 0},
+            lambda r: load_percent(r, 0.2, (QUERY_AFTER,), name=LOAD_NOW), {"digits": 0},
             lambda r: "the build before, same rounds: " + fmt_range(
-                load_percent(r, 0.2, WATCHER_BEFORE, name=LOAD_WATCHER), digits=0),
-            ("≥ 80", (">=", 80)), [LOAD_WATCHER]),
+                load_percent(r, 0.2, (QUERY_BEFORE,), name=LOAD_NOW), digits=0)
+            + "; host D, 2026-12-01: " + fmt_range(
+                load_percent(r, 0.2, WATCHER_AFTER, name=LOAD_WATCHER), digits=0),
+            ("≥ 80", (">=", 80)), [LOAD_NOW, LOAD_WATCHER]),
         Row("the same, the dashboard at the finest level (5 cm)", lambda r: load_percent(r, 0.0),
             {"digits": 0},
             lambda r: "meshing budget 0.5 (the default before): " + fmt_range(
