@@ -400,6 +400,29 @@ CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
 GPU_MAP = "2026-11-28-gpu-rim-map.json"
 
+QUERY_1M = "Query/points:1000000/gradient:{}/neural:0"
+QUERY_PLANNER = "QueryPlanner/neural:0"
+
+
+def query_mpoints(results, benchmark, points, build=None, name=QUERY_NOW, scale=1.0):
+    """Points a second of a query benchmark of POINTS points (real_time in ms), times SCALE
+    (1e6: points/s; 1: M points/s), over the runs of BUILD (all when None) in NAME."""
+    where = {"benchmark": benchmark}
+    if build is not None:
+        where["build"] = build
+    return [points * 1e3 / v / 1e6 * scale for v in results.values(name, "real_time", **where)]
+
+
+def query_anchor(results, benchmark, points, host_d):
+    """The build before in the same runs, and (HOST_D) host D's runs of 2026-12-01, M points/s."""
+    text = "the build before, same runs: " + fmt_range(
+        query_mpoints(results, benchmark, points, build=QUERY_BEFORE), digits=2)
+    if host_d:
+        text += "; host D, 2026-12-01: " + fmt_range(
+            query_mpoints(results, benchmark, points, name=QUERY), digits=2)
+    return text
+
+
 TABLES = {
     "speed": [
         Row("`rim_map`, 120-frame city, `maicity` (30 iterations), ms a frame",
@@ -425,41 +448,19 @@ TABLES = {
             lambda r: r.values(REFRESH, "ms_per_frame", preset="campus"), F1,
             "–", None, [REFRESH]),
         Row("distance queries, 1M points, distance only, M points/s",
-            lambda r: [1e9 / v for v in r.values(
-                QUERY_NOW, "real_time", benchmark="Query/points:1000000/gradient:0/neural:0",
-                build=QUERY_AFTER)],
+            lambda r: query_mpoints(r, QUERY_1M.format(0), 1e6, build=QUERY_AFTER, scale=1e6),
             {"digits": 2, "scale": 1e-6},
-            lambda r: "the build before, same runs: " + fmt_range(
-                [1e3 / v for v in r.values(QUERY_NOW, "real_time",
-                                           benchmark="Query/points:1000000/gradient:0/neural:0",
-                                           build=QUERY_BEFORE)], digits=2)
-            + "; host D, 2026-12-01: " + fmt_range(
-                [1e3 / v for v in r.values(QUERY, "real_time",
-                                           benchmark="Query/points:1000000/gradient:0/neural:0")],
-                digits=2),
+            lambda r: query_anchor(r, QUERY_1M.format(0), 1e6, host_d=True),
             ("≥ 1", (">=", 1e6)), [QUERY_NOW, QUERY]),
         Row("the same with the gradient, M points/s",
-            lambda r: [1e9 / v for v in r.values(
-                QUERY_NOW, "real_time", benchmark="Query/points:1000000/gradient:1/neural:0",
-                build=QUERY_AFTER)],
+            lambda r: query_mpoints(r, QUERY_1M.format(1), 1e6, build=QUERY_AFTER, scale=1e6),
             {"digits": 2, "scale": 1e-6},
-            lambda r: "the build before, same runs: " + fmt_range(
-                [1e3 / v for v in r.values(QUERY_NOW, "real_time",
-                                           benchmark="Query/points:1000000/gradient:1/neural:0",
-                                           build=QUERY_BEFORE)], digits=2),
+            lambda r: query_anchor(r, QUERY_1M.format(1), 1e6, host_d=False),
             None, [QUERY_NOW]),
         Row("distance queries where a planner asks (`QueryPlanner`, 100k points), M points/s",
-            lambda r: [1e8 / v for v in r.values(QUERY_NOW, "real_time",
-                                                  benchmark="QueryPlanner/neural:0",
-                                                  build=QUERY_AFTER)],
+            lambda r: query_mpoints(r, QUERY_PLANNER, 1e5, build=QUERY_AFTER, scale=1e6),
             {"digits": 2, "scale": 1e-6},
-            lambda r: "the build before, same runs: " + fmt_range(
-                [1e2 / v for v in r.values(QUERY_NOW, "real_time",
-                                           benchmark="QueryPlanner/neural:0",
-                                           build=QUERY_BEFORE)], digits=2)
-            + "; host D, 2026-12-01: " + fmt_range(
-                [1e2 / v for v in r.values(QUERY, "real_time",
-                                           benchmark="QueryPlanner/neural:0")], digits=2),
+            lambda r: query_anchor(r, QUERY_PLANNER, 1e5, host_d=True),
             None, [QUERY_NOW, QUERY]),
     ],
     "quality": [
