@@ -82,6 +82,7 @@ template <typename Pred>
 std::pair<int, int> DroppedWhere(const Scan& later, PointBuffer* buffer, Pred in,
                                  TransientConfig config = TransientConfig()) {
   config.period_frames = 1;
+  config.quiet_turns = 1;  // the rule alone: every point judged (the turns' schedule is apart)
   int matched_before = 0, matched_after = 0;
   for (const Vec3f& p : buffer->points()) matched_before += in(p);
   TransientFilter filter(config);
@@ -201,6 +202,59 @@ TEST(TransientTest, AWallSeenThenARayThroughItIsDropped) {
   EXPECT_EQ(static_dropped, 0) << "of " << statics;
 }
 
+// The buffer's turns (TransientConfig::quiet_turns, active_frames): where nothing was dropped
+// lately a point is judged in one turn of quiet_turns; within a column of a drop of the last
+// active_frames frames, in every turn. A wall that has gone loses a quiet share of its points at
+// the first turn, and the rest at the next, since those drops made its columns active; the far
+// wall and the ground away from it are judged a quarter as often, and keep every point.
+TEST(TransientTest, AGoneWallIsClearedWithinTwoTurnsAndQuietPlacesAreJudgedLessOften) {
+  AnalyticScene before = Ground();
+  before.boxes.push_back({Eigen::Vector3f(8.f, -1.f, -0.05f), Eigen::Vector3f(8.5f, 1.f, 2.f)});
+  before.boxes.push_back({Eigen::Vector3f(20.f, -8.f, -0.05f), Eigen::Vector3f(21.f, 8.f, 6.f)});
+  AnalyticScene after = before;
+  after.boxes.erase(after.boxes.begin());
+  auto on_wall = [](const Vec3f& p) { return p.x() < 8.6f && p.x() > 7.9f && p.z() > 0.3f; };
+  auto far_wall = [](const Vec3f& p) { return p.x() > 19.9f; };
+  auto count = [](const PointBuffer& b, auto pred) {
+    int n = 0;
+    for (const Vec3f& p : b.points()) n += pred(p);
+    return n;
+  };
+  const Scan first = Take(before, PoseAt(0, 0), 1);
+  const Scan later = Take(after, PoseAt(1.f, 0.2f), 2);
+  TransientConfig config;
+  config.period_frames = 1;
+  ASSERT_EQ(config.quiet_turns, 4);
+  ASSERT_GT(config.active_frames, 1);
+  PointBuffer buffer = BufferOf(first);
+  const int wall = count(buffer, on_wall), far = count(buffer, far_wall);
+  const int64_t all = int64_t(buffer.points().size());
+  ASSERT_GT(wall, 500);
+  ASSERT_GT(far, 1000);
+  TransientFilter filter(config);
+  std::mutex mu;
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &buffer, nullptr, nullptr, &mu, nullptr);
+  const int after_first = count(buffer, on_wall);
+  const int64_t judged_first = filter.Stats().judged;
+  // Nothing active yet: a quarter of the points judged, and of the wall's a quarter dropped.
+  EXPECT_NEAR(double(judged_first), all / 4.0, all * 0.01);
+  EXPECT_NEAR(double(wall - after_first), wall / 4.0, wall * 0.05);
+  filter.Apply(later.points_S, later.T, 0.3f, 60.f, 1, &buffer, nullptr, nullptr, &mu, nullptr);
+  EXPECT_LE(count(buffer, on_wall), int(0.05 * wall)) << "of " << wall;
+  EXPECT_EQ(count(buffer, far_wall), far);
+  // The second turn judged the wall's columns whole and a quarter elsewhere.
+  const int64_t second = filter.Stats().judged - judged_first;
+  EXPECT_LT(second, int64_t(buffer.points().size()) / 2);
+  EXPECT_GT(second, int64_t(buffer.points().size()) / 4);
+  // Every turn judges every point when the gate is off, and the verdicts are the rule's.
+  config.quiet_turns = 1;
+  PointBuffer again = BufferOf(first);
+  TransientFilter every(config);
+  every.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &again, nullptr, nullptr, &mu, nullptr);
+  EXPECT_EQ(every.Stats().judged, all);
+  EXPECT_LE(count(again, on_wall), int(0.05 * wall));
+}
+
 // A person's lowest part stands on the road: the rays below it end on the road in front of where
 // it stood, so not every return about it ends beyond. The road around its direction is one plane
 // that passes it by more than the margin, and that decides.
@@ -238,6 +292,7 @@ TEST(TransientTest, DroppedPointsJoinTheClearedSetAndExpire) {
   PointBuffer buffer = BufferOf(Take(before, PoseAt(0, 0), 1));
   TransientConfig config;
   config.period_frames = 1;
+  config.quiet_turns = 1;
   TransientFilter filter(config);
   std::mutex mu;
   const Scan later = Take(Ground(), PoseAt(0, 0), 2);
@@ -406,6 +461,7 @@ TEST(TransientTest, TheFilterDropsExactlyThePointsJudgeSeesThrough) {
   const std::vector<Vec3f> points = buffer.points();
   TransientConfig config;
   config.period_frames = 1;
+  config.quiet_turns = 1;
   TransientFilter filter(config);
   WorkerPool pool(2);
   std::mutex mu;
@@ -530,14 +586,28 @@ TEST(TransientTest, DeferredRaysSeenThroughAreDroppedAndStaticOnesKept) {
 }
 
 TEST(TransientTest, BadConfigValuesNameTheField) {
-  for (const char* kv :
-       {"transient.margin_m=0", "transient.bin_deg=NaN", "transient.window_elevation_bins=0",
-        "transient.max_range_m=0.5", "transient.period_frames=0", "transient.clear_label_m=-1",
-        "transient.clear_samples_per_iteration=-3", "transient.max_cleared_points=-1",
-        "transient.fit_rms_m=0", "transient.fit_rms_per_m=NaN",
-        "transient.fit_normal_margin_m=-0.1", "transient.near_m=2", "transient.near_bins=-1",
-        "transient.surface_fit=maybe", "transient.empty_is_free=2", "transient.past_frames=-1",
-        "transient.past_frames=101", "transient.past_scans=5"}) {
+  for (const char* kv : {"transient.margin_m=0",
+                         "transient.bin_deg=NaN",
+                         "transient.window_elevation_bins=0",
+                         "transient.max_range_m=0.5",
+                         "transient.period_frames=0",
+                         "transient.clear_label_m=-1",
+                         "transient.clear_samples_per_iteration=-3",
+                         "transient.max_cleared_points=-1",
+                         "transient.fit_rms_m=0",
+                         "transient.fit_rms_per_m=NaN",
+                         "transient.fit_normal_margin_m=-0.1",
+                         "transient.near_m=2",
+                         "transient.near_bins=-1",
+                         "transient.surface_fit=maybe",
+                         "transient.empty_is_free=2",
+                         "transient.past_frames=-1",
+                         "transient.past_frames=101",
+                         "transient.past_scans=5",
+                         "transient.active_frames=-1",
+                         "transient.active_cell_m=0",
+                         "transient.active_cell_m=NaN",
+                         "transient.quiet_turns=0"}) {
     auto config = MakePreset("maicity");
     ASSERT_TRUE(config.ok());
     const absl::Status s = ApplyOverrides({kv}, &*config);
@@ -613,13 +683,18 @@ TEST(TransientTest, AMapperForgetsAPersonWhoWalkedOff) {
 // A robot driving 1 m a frame along +x for 26 frames past a facade 8 m to its left, while a
 // person stands 3 m to its left at x = 2 from frame `first` to frame `last`; the box (±10 m)
 // holds x = 2 until about frame 12. The facade is long enough that every ray through where the
-// person stood ends on it (rays into the sky are no evidence). `setting`: one more override.
-std::unique_ptr<Mapper> DriveByAPerson(const std::string& setting, int first, int last,
+// person stood ends on it (rays into the sky are no evidence). `settings`: more overrides,
+// separated by commas.
+std::unique_ptr<Mapper> DriveByAPerson(const std::string& settings, int first, int last,
                                        uint64_t seed) {
   auto config = MakePreset("maicity");
-  EXPECT_TRUE(
-      ApplyOverrides({"train.iterations=8", "decoder.freeze_after_frames=5", setting}, &*config)
-          .ok());
+  std::vector<std::string> overrides = {"train.iterations=8", "decoder.freeze_after_frames=5"};
+  for (size_t at = 0; at <= settings.size();) {  // comma-separated
+    const size_t end = std::min(settings.find(',', at), settings.size());
+    overrides.push_back(settings.substr(at, end - at));
+    at = end + 1;
+  }
+  EXPECT_TRUE(ApplyOverrides(overrides, &*config).ok());
   auto mapper = Mapper::Create(*config);
   EXPECT_TRUE(mapper.ok());
   AnalyticScene scene = Ground();
@@ -674,12 +749,20 @@ TEST(TransientTest, APersonLeftBehindByTheBoxIsClearedFromTheGlobalMap) {
 // The buffer drops what those rays see through (judged after the box moved), and the global map
 // clears it. When it did not (the points were outside the new box, so the live map's unmarking
 // passed them by), 319 and 1454 vertices stayed there for the last frames 10 and 12; now 0 and
-// 36, specks where the person's edge met the ground.
+// 36, specks where the person's edge met the ground. Every buffered point takes every turn here
+// (quiet_turns=1): the person vanishes where nothing moved before, and with the default quarter
+// of the turns a quiet place gets, the buffer saw through 195 of their returns before the box
+// left; the departed points, on by default, clear the rest (the last check).
 TEST(TransientTest, APersonSeenThroughAsTheBoxLeavesIsClearedFromTheGlobalMap) {
   for (int last : {10, 12}) {
-    std::unique_ptr<Mapper> mapper = DriveByAPerson("transient.departed_frames=0", 0, last, 40);
+    std::unique_ptr<Mapper> mapper =
+        DriveByAPerson("transient.departed_frames=0,transient.quiet_turns=1", 0, last, 40);
     EXPECT_GT(mapper->Stats().transient_buffer_removed, 500) << "person until frame " << last;
     EXPECT_LE(MeshVerticesWherePersonStood(*mapper), 60) << "person until frame " << last;
+  }
+  for (int last : {10, 12}) {
+    std::unique_ptr<Mapper> mapper = DriveByAPerson("transient.enabled=true", 0, last, 40);
+    EXPECT_LE(MeshVerticesWherePersonStood(*mapper), 60) << "defaults, person until " << last;
   }
 }
 

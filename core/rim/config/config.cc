@@ -83,6 +83,9 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.min_range_m", c.transient.min_range_m);
   v("transient.max_range_m", c.transient.max_range_m);
   v("transient.period_frames", c.transient.period_frames);
+  v("transient.active_frames", c.transient.active_frames);
+  v("transient.active_cell_m", c.transient.active_cell_m);
+  v("transient.quiet_turns", c.transient.quiet_turns);
   v("transient.clear_samples_per_iteration", c.transient.clear_samples_per_iteration);
   v("transient.clear_label_m", c.transient.clear_label_m);
   v("transient.clear_frames", c.transient.clear_frames);
@@ -274,6 +277,12 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.max_range_m", "must be in (transient.min_range_m, 1000] m");
   if (tr.period_frames < 1 || tr.period_frames > 1000)
     return Bad("transient.period_frames", "must be in [1, 1000]");
+  if (tr.active_frames < 0 || tr.active_frames > 100000)
+    return Bad("transient.active_frames", "must be in [0, 100000]");
+  if (!(tr.active_cell_m >= 0.05f && tr.active_cell_m <= 100.f))
+    return Bad("transient.active_cell_m", "must be in [0.05, 100] m");
+  if (tr.quiet_turns < 1 || tr.quiet_turns > 1000)
+    return Bad("transient.quiet_turns", "must be in [1, 1000]");
   if (tr.clear_samples_per_iteration < 0 || tr.clear_samples_per_iteration > 1 << 20)
     return Bad("transient.clear_samples_per_iteration", "must be in [0, 1048576]");
   if (!(tr.clear_label_m > 0.f && tr.clear_label_m <= 10.f))

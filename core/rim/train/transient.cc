@@ -6,6 +6,7 @@
 #endif
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <tuple>
@@ -855,18 +856,30 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   const int phase = int(frame % period);
 
   // The buffer: this frame's turn (i mod period = phase) judged over the pool, each judgement
-  // writing its own flag.
+  // writing its own flag. Where nothing was dropped lately, a point takes one turn in
+  // quiet_turns (the k-th of the turn when k mod quiet_turns is this frame's quiet phase).
   const std::vector<Vec3f>& points = buffer->points();
   const size_t n = points.size();
   drop_.assign(n, 0);
   const size_t turn =
       n > size_t(phase) ? (n - size_t(phase) + size_t(period) - 1) / size_t(period) : 0;
+  const bool gate = BuildActiveMask(frame);
+  const size_t quiet = size_t(config_.quiet_turns);
+  const size_t quiet_phase = size_t((frame / period) % int64_t(quiet));
+  std::atomic<int64_t> judged{0};
   JudgeInPieces(turn, pool, [&](size_t begin, size_t end) {
     auto index = [&](size_t k) { return size_t(phase) + k * size_t(period); };
+    int64_t mine = 0;
     JudgeRange(
-        image_, config_, begin, end, [](size_t) { return true; },
+        image_, config_, begin, end,
+        [&](size_t k) {
+          const bool want = !gate || k % quiet == quiet_phase || active_mask_.Has(points[index(k)]);
+          mine += want;
+          return want;
+        },
         [&](size_t k) { return view.ToSensor(points[index(k)]); },
         [&](size_t k, Verdict v) { drop_[index(k)] = v == Verdict::kSeenThrough; });
+    judged.fetch_add(mine, std::memory_order_relaxed);
   });
   const bool unmark = map != nullptr && map->placed();
   const int64_t departed_seen = unmark && config_.departed_frames > 0
@@ -874,7 +887,7 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
                                     : 0;
   const int64_t dropped = DropFromBuffer(frame, 0, buffer, map, aux_mu);
   std::lock_guard<std::mutex> lock(*aux_mu);  // stats_ too: Mapper::Stats reads them under it
-  stats_.judged += int64_t(turn);
+  stats_.judged += judged.load(std::memory_order_relaxed);
   stats_.departed_removed += departed_seen;
   stats_.buffer_removed += dropped;
   if (deferred) {
@@ -888,6 +901,42 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   }
 }
 
+void TransientFilter::NoteDrop(const Vec3f& p_W, int64_t frame) {
+  if (config_.active_frames <= 0 || config_.quiet_turns <= 1) return;
+  const float inv_cell = 1.f / config_.active_cell_m;
+  active_[ColumnKey(int(std::floor(p_W.x() * inv_cell)), int(std::floor(p_W.y() * inv_cell)))] =
+      frame;
+}
+
+bool TransientFilter::BuildActiveMask(int64_t frame) {
+  if (config_.active_frames <= 0 || config_.quiet_turns <= 1) return false;
+  absl::erase_if(active_,
+                 [&](const auto& kv) { return frame - kv.second > config_.active_frames; });
+  ActiveMask& m = active_mask_;
+  m.inv_cell = 1.f / config_.active_cell_m;
+  m.nx = m.ny = 0;
+  if (active_.empty()) return true;
+  int lo_x = std::numeric_limits<int>::max(), lo_y = lo_x;
+  int hi_x = std::numeric_limits<int>::min(), hi_y = hi_x;
+  for (const auto& kv : active_) {
+    const int cx = int32_t(uint32_t(kv.first >> 32)), cy = int32_t(uint32_t(kv.first));
+    lo_x = std::min(lo_x, cx), hi_x = std::max(hi_x, cx);
+    lo_y = std::min(lo_y, cy), hi_y = std::max(hi_y, cy);
+  }
+  const int64_t nx = int64_t(hi_x) - lo_x + 3, ny = int64_t(hi_y) - lo_y + 3;
+  // Drops spread over more columns than a mask should hold (a tiny column over a wide map):
+  // every point takes its turn this frame.
+  if (nx * ny > (int64_t(1) << 24)) return false;
+  m.x0 = lo_x - 1, m.y0 = lo_y - 1, m.nx = int(nx), m.ny = int(ny);
+  m.on.assign(size_t(nx * ny), 0);
+  for (const auto& kv : active_) {
+    const int x = int32_t(uint32_t(kv.first >> 32)) - m.x0, y = int32_t(uint32_t(kv.first)) - m.y0;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy) m.on[size_t(x + dx) * size_t(ny) + size_t(y + dy)] = 1;
+  }
+  return true;
+}
+
 int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer,
                                         LocalMap* map, std::mutex* aux_mu) {
   const std::vector<Vec3f>& points = buffer->points();
@@ -898,6 +947,7 @@ int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer*
   for (size_t i = from; i < n; ++i) {
     if (!drop_[i]) continue;
     gone.push_back(uint32_t(i));
+    NoteDrop(points[i], frame);
     const Vec3f d = points[i] - buffer->origins()[i];
     const float len = d.norm();
     cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);

@@ -34,6 +34,7 @@
 #include <utility>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "rim/base/types.h"
 #include "rim/base/worker_pool.h"
 #include "rim/config/config.h"
@@ -236,6 +237,29 @@ class TransientFilter {
   // Returns how many departed points were seen through.
   int64_t JudgeDeparted(const std::vector<Vec3f>& points, int64_t frame, const LocalMap& map,
                         const Eigen::Isometry3f& T_world_sensor, WorkerPool* pool);
+
+  // Where things move (TransientConfig::active_frames): the columns, active_cell_m across x and y,
+  // in which a buffered return was dropped, with the frame of the last drop there.
+  static uint64_t ColumnKey(int cx, int cy) {
+    return (uint64_t(uint32_t(cx)) << 32) | uint64_t(uint32_t(cy));
+  }
+  void NoteDrop(const Vec3f& p_W, int64_t frame);
+  // Forgets the columns quiet since before frame − active_frames and sets active_mask_ to those
+  // left, each with its eight neighbours. Returns false when the gate is off this frame (every
+  // point takes its turn).
+  bool BuildActiveMask(int64_t frame);
+  absl::flat_hash_map<uint64_t, int64_t> active_;
+  struct ActiveMask {
+    int x0 = 0, y0 = 0, nx = 0, ny = 0;  // columns [x0, x0 + nx) × [y0, y0 + ny)
+    float inv_cell = 1.f;
+    std::vector<uint8_t> on;
+    bool Has(const Vec3f& p_W) const {
+      const int x = int(std::floor(p_W.x() * inv_cell)) - x0;
+      const int y = int(std::floor(p_W.y() * inv_cell)) - y0;
+      return x >= 0 && y >= 0 && x < nx && y < ny && on[size_t(x) * size_t(ny) + size_t(y)];
+    }
+  };
+  ActiveMask active_mask_;
 
   TransientConfig config_;
   RangeImage image_;  // this frame's scan
