@@ -202,11 +202,12 @@ TEST(TransientTest, AWallSeenThenARayThroughItIsDropped) {
   EXPECT_EQ(static_dropped, 0) << "of " << statics;
 }
 
-// The buffer's turns (TransientConfig::quiet_turns, active_frames): where nothing was dropped
-// lately a point is judged in one turn of quiet_turns; within a column of a drop of the last
-// active_frames frames, in every turn. A wall that has gone loses a quiet share of its points at
-// the first turn, and the rest at the next, since those drops made its columns active; the far
-// wall and the ground away from it are judged a quarter as often, and keep every point.
+// The buffer's turns (TransientConfig::quiet_turns, active_frames, active_period_frames): where
+// nothing was dropped lately a point is judged in one turn of quiet_turns; within a column of a
+// drop of the last active_frames frames, every active_period_frames frames. A wall that has gone
+// loses a quiet share of its points at the first turn, and the rest at the next, since those drops
+// made its columns active; the far wall and the ground away from it are judged a quarter as often,
+// and keep every point.
 TEST(TransientTest, AGoneWallIsClearedWithinTwoTurnsAndQuietPlacesAreJudgedLessOften) {
   AnalyticScene before = Ground();
   before.boxes.push_back({Eigen::Vector3f(8.f, -1.f, -0.05f), Eigen::Vector3f(8.5f, 1.f, 2.f)});
@@ -246,6 +247,25 @@ TEST(TransientTest, AGoneWallIsClearedWithinTwoTurnsAndQuietPlacesAreJudgedLessO
   const int64_t second = filter.Stats().judged - judged_first;
   EXPECT_LT(second, int64_t(buffer.points().size()) / 2);
   EXPECT_GT(second, int64_t(buffer.points().size()) / 4);
+  // With the default period (a quarter of the points a frame, a sixteenth where quiet) and
+  // active_period_frames=1, places where things move are judged in every frame: the wall goes in
+  // the two frames after its first drops, not in a turn four frames later.
+  {
+    TransientConfig defaults;
+    ASSERT_EQ(defaults.period_frames, 4);
+    ASSERT_EQ(defaults.active_period_frames, 0);  // every period_frames
+    defaults.active_period_frames = 1;
+    PointBuffer each = BufferOf(first);
+    TransientFilter filter4(defaults);
+    filter4.Apply(later.points_S, later.T, 0.3f, 60.f, 0, &each, nullptr, nullptr, &mu, nullptr);
+    EXPECT_NEAR(double(filter4.Stats().judged), all / 16.0, all * 0.01);
+    const int left0 = count(each, on_wall);
+    EXPECT_NEAR(double(wall - left0), wall / 16.0, wall * 0.03);
+    filter4.Apply(later.points_S, later.T, 0.3f, 60.f, 1, &each, nullptr, nullptr, &mu, nullptr);
+    filter4.Apply(later.points_S, later.T, 0.3f, 60.f, 2, &each, nullptr, nullptr, &mu, nullptr);
+    EXPECT_LE(count(each, on_wall), int(0.05 * wall)) << "of " << wall;
+    EXPECT_EQ(count(each, far_wall), far);
+  }
   // Every turn judges every point when the gate is off, and the verdicts are the rule's.
   config.quiet_turns = 1;
   PointBuffer again = BufferOf(first);
@@ -607,7 +627,9 @@ TEST(TransientTest, BadConfigValuesNameTheField) {
                          "transient.active_frames=-1",
                          "transient.active_cell_m=0",
                          "transient.active_cell_m=NaN",
-                         "transient.quiet_turns=0"}) {
+                         "transient.quiet_turns=0",
+                         "transient.active_period_frames=-1",
+                         "transient.active_period_frames=5"}) {
     auto config = MakePreset("maicity");
     ASSERT_TRUE(config.ok());
     const absl::Status s = ApplyOverrides({kv}, &*config);

@@ -86,6 +86,7 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.active_frames", c.transient.active_frames);
   v("transient.active_cell_m", c.transient.active_cell_m);
   v("transient.quiet_turns", c.transient.quiet_turns);
+  v("transient.active_period_frames", c.transient.active_period_frames);
   v("transient.clear_samples_per_iteration", c.transient.clear_samples_per_iteration);
   v("transient.clear_label_m", c.transient.clear_label_m);
   v("transient.clear_frames", c.transient.clear_frames);
@@ -283,6 +284,9 @@ absl::Status MapperConfig::Validate() const {
     return Bad("transient.active_cell_m", "must be in [0.05, 100] m");
   if (tr.quiet_turns < 1 || tr.quiet_turns > 1000)
     return Bad("transient.quiet_turns", "must be in [1, 1000]");
+  if (tr.active_period_frames < 0 || tr.active_period_frames > tr.period_frames)
+    return Bad("transient.active_period_frames",
+               "must be in [0, transient.period_frames] (0: transient.period_frames)");
   if (tr.clear_samples_per_iteration < 0 || tr.clear_samples_per_iteration > 1 << 20)
     return Bad("transient.clear_samples_per_iteration", "must be in [0, 1048576]");
   if (!(tr.clear_label_m > 0.f && tr.clear_label_m <= 10.f))

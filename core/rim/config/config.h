@@ -154,15 +154,19 @@ struct TransientConfig {
   float max_range_m = 40.f;
   // Each frame judges one in this many of the buffered and deferred points (in turn).
   int period_frames = 4;
-  // Where things move: the buffer's turn judges a point at every turn while a buffered return
-  // within about a column of it (columns of active_cell_m, across x and y) was dropped in the last
-  // active_frames frames, and takes only one turn in quiet_turns elsewhere. Over held-out cities
-  // 99 % of the turn's drops lay within a column of a drop of the ten frames before, in a fifth of
-  // the buffer (docs/core.md, "Moving things"). active_frames 0 or quiet_turns 1: every point takes
-  // every turn.
+  // Where things move: a buffered point is judged every active_period_frames frames (0: every
+  // period_frames) while a buffered return within about a column of it (columns of active_cell_m,
+  // across x and y) was dropped in the last active_frames frames, and one turn in quiet_turns
+  // elsewhere (every period_frames · quiet_turns frames). 99 % of the turn's drops lay within a
+  // column of a drop of the ten frames before, in a fifth of the buffer. A place beside the road
+  // is often in view for a few frames only, as the robot passes: active_period_frames 1 judges it
+  // in each of them, for a fifth fewer floaters on the hardest city and a fifth more time in the
+  // filter (docs/core.md, "Moving things"). active_frames 0 or quiet_turns 1: every point takes
+  // its turn every period_frames frames, wherever it is.
   int active_frames = 10;
   float active_cell_m = 1.f;
   int quiet_turns = 4;
+  int active_period_frames = 0;
   // Free-space samples where dropped returns stood: how many per iteration, their label, for how
   // many frames a dropped return is cleared, and at most how many are held.
   int clear_samples_per_iteration = 128;

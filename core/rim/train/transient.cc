@@ -697,7 +697,7 @@ Verdict JudgePlaced(const RangeImage& image, const TransientConfig& c, const Vec
 
 // Judges the points i of [begin, end) for which want(i) holds, p_S(i) in the image's sensor frame,
 // and hands each verdict to done(i, verdict): eight places at a time (RangeImage::Place8, the
-// bits of PlaceOf and norm()).
+// bits of PlaceOf and norm()). want is asked once for each i, in increasing order.
 template <class Want, class PointAt, class Done>
 void JudgeRange(const RangeImage& image, const TransientConfig& c, size_t begin, size_t end,
                 Want want, PointAt p_S, Done done) {
@@ -853,32 +853,38 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   image_frame_ = frame;
   const SensorView view(image_, T_world_sensor);
   const int period = config_.period_frames;
-  const int phase = int(frame % period);
 
-  // The buffer: this frame's turn (i mod period = phase) judged over the pool, each judgement
-  // writing its own flag. Where nothing was dropped lately, a point takes one turn in
-  // quiet_turns (the k-th of the turn when k mod quiet_turns is this frame's quiet phase).
+  // The buffer, judged over the pool, each judgement writing its own flag. Point i takes its turn
+  // in the frames with i ≡ frame (mod period_frames); where nothing was dropped lately, in one of
+  // those in quiet_turns (i ≡ frame mod period_frames · quiet_turns), and where things move,
+  // every active_period_frames frames (i ≡ frame mod active_period_frames; by default
+  // period_frames, so every turn).
   const std::vector<Vec3f>& points = buffer->points();
   const size_t n = points.size();
   drop_.assign(n, 0);
-  const size_t turn =
-      n > size_t(phase) ? (n - size_t(phase) + size_t(period) - 1) / size_t(period) : 0;
   const bool gate = BuildActiveMask(frame);
-  const size_t quiet = size_t(config_.quiet_turns);
-  const size_t quiet_phase = size_t((frame / period) % int64_t(quiet));
+  const size_t every = size_t(period) * (gate ? size_t(config_.quiet_turns) : 1);
+  const size_t active_every =
+      size_t(config_.active_period_frames > 0 ? config_.active_period_frames : period);
+  const size_t phase_every = size_t(frame % int64_t(every));
+  const size_t phase_active = size_t(frame % int64_t(active_every));
   std::atomic<int64_t> judged{0};
-  JudgeInPieces(turn, pool, [&](size_t begin, size_t end) {
-    auto index = [&](size_t k) { return size_t(phase) + k * size_t(period); };
+  JudgeInPieces(n, pool, [&](size_t begin, size_t end) {
+    // i mod every and i mod active_every, kept as JudgeRange asks for each i in turn.
+    size_t r = begin % every, ra = begin % active_every;
     int64_t mine = 0;
     JudgeRange(
         image_, config_, begin, end,
-        [&](size_t k) {
-          const bool want = !gate || k % quiet == quiet_phase || active_mask_.Has(points[index(k)]);
+        [&](size_t i) {
+          const bool want =
+              r == phase_every || (gate && ra == phase_active && active_mask_.Has(points[i]));
+          if (++r == every) r = 0;
+          if (++ra == active_every) ra = 0;
           mine += want;
           return want;
         },
-        [&](size_t k) { return view.ToSensor(points[index(k)]); },
-        [&](size_t k, Verdict v) { drop_[index(k)] = v == Verdict::kSeenThrough; });
+        [&](size_t i) { return view.ToSensor(points[i]); },
+        [&](size_t i, Verdict v) { drop_[i] = v == Verdict::kSeenThrough; });
     judged.fetch_add(mine, std::memory_order_relaxed);
   });
   const bool unmark = map != nullptr && map->placed();
