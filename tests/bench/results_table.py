@@ -626,8 +626,8 @@ TABLES = {
                                                                digits=3),
             ("≤ 0.1", ("<=", 0.1)), [GHOSTS]),
         Row("floaters, filter on, the build of 2026-12-02 that judges every point where things "
-            "move and a quarter as often elsewhere: fresh seeds 776–778, `maicity` and "
-            "`maicity_online`, %",
+            "move and a quarter as often elsewhere: fresh seeds 776–778 (`maicity` and "
+            "`maicity_online`) and 779–781 (`maicity_online`), %",
             lambda r: r.values(TRANSIENT_COST, "floater_pct", kind="map", city="moving",
                                build="after"), F3,
             lambda r: "every point at every turn: " + fmt_range(
