@@ -312,6 +312,16 @@ def moving_c_l1_pct(results, name):
     return out
 
 
+def turn_maps_row(measure, field):
+    """A row of the moving-city maps of TRANSIENT_COST: the default build against every point
+    judged at every turn (transient.quiet_turns=1)."""
+    def maps(r, build):
+        return r.values(TRANSIENT_COST, field, kind="map", city="moving", build=build)
+    return Row(measure, lambda r: maps(r, "after"), F3,
+               lambda r: "every point at every turn: " + fmt_range(maps(r, "before"), digits=3),
+               ("≤ 0.1", ("<=", 0.1)), [TRANSIENT_COST])
+
+
 def moving_gap(results, name, **where):
     out = []
     for r in results.runs(name, city="moving", **where):
@@ -625,22 +635,11 @@ TABLES = {
             lambda r: "the same runs' floaters: " + fmt_range(r.values(GHOSTS, "floater_pct"),
                                                                digits=3),
             ("≤ 0.1", ("<=", 0.1)), [GHOSTS]),
-        Row("floaters, filter on, the build of 2026-12-02 that judges every point where things "
-            "move and a quarter as often elsewhere: fresh seeds 776–778 (`maicity` and "
-            "`maicity_online`) and 779–781 (`maicity_online`), %",
-            lambda r: r.values(TRANSIENT_COST, "floater_pct", kind="map", city="moving",
-                               build="after"), F3,
-            lambda r: "every point at every turn: " + fmt_range(
-                r.values(TRANSIENT_COST, "floater_pct", kind="map", city="moving",
-                         build="before"), digits=3),
-            ("≤ 0.1", ("<=", 0.1)), [TRANSIENT_COST]),
-        Row("ghosts of those runs, %",
-            lambda r: r.values(TRANSIENT_COST, "ghost_pct", kind="map", city="moving",
-                               build="after"), F3,
-            lambda r: "every point at every turn: " + fmt_range(
-                r.values(TRANSIENT_COST, "ghost_pct", kind="map", city="moving",
-                         build="before"), digits=3),
-            ("≤ 0.1", ("<=", 0.1)), [TRANSIENT_COST]),
+        turn_maps_row("floaters, filter on, the build of 2026-12-02 that judges every point "
+                      "where things move and a quarter as often elsewhere: fresh seeds 776–778 "
+                      "(`maicity` and `maicity_online`) and 779–781 (`maicity_online`), %",
+                      "floater_pct"),
+        turn_maps_row("ghosts of those runs, %", "ghost_pct"),
         Row("C-L1 of those runs above the same city without movers, %",
             lambda r: [100 * (m["c_l1_cm"] / s["c_l1_cm"] - 1)
                        for s in r.runs(TRANSIENT_COST, kind="map", city="static")
