@@ -405,6 +405,7 @@ MOVING = "2026-11-28-moving-things-earlier.json"
 GHOSTS = "2026-12-02-moving-ghosts.json"
 PLANNER_RICH = "2026-12-02-planner-rich.json"
 TRANSIENT_COST = "2026-12-02-transient-gate.json"  # the turn where things move, and every turn
+TSDF_MOVING = "2026-12-02-tsdf-moving.json"  # the TSDF reference on the cities of TRANSIENT_COST
 CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
@@ -640,6 +641,15 @@ TABLES = {
                       "(`maicity` and `maicity_online`) and 779–781 (`maicity_online`), %",
                       "floater_pct"),
         turn_maps_row("ghosts of those runs, %", "ghost_pct"),
+        Row("floaters of the TSDF reference with space carving (`rim_tsdf --carve`, 10 cm "
+            "voxels) on the cities of seeds 776–778, %",
+            lambda r: r.values(TSDF_MOVING, "floater_pct", run="tsdf_carve"), F3,
+            lambda r: "rim, same cities: " + fmt_range(
+                [m["floater_pct"] for m in r.runs(TRANSIENT_COST, kind="map", city="moving",
+                                                  build="after") if m["seed"] in (776, 777, 778)],
+                digits=3) + "; the TSDF without carving: " + fmt_range(
+                r.values(TSDF_MOVING, "floater_pct", run="tsdf_no_carve"), digits=1),
+            None, [TSDF_MOVING, TRANSIENT_COST]),
         Row("C-L1 of those runs above the same city without movers, %",
             lambda r: [100 * (m["c_l1_cm"] / s["c_l1_cm"] - 1)
                        for s in r.runs(TRANSIENT_COST, kind="map", city="static")
