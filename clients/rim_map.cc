@@ -278,10 +278,11 @@ absl::Status Run(const Args& args) {
               (long long)final_stats.distance_surfels, (long long)final_stats.distance_returns,
               double(final_stats.distance_bytes) / 1e6, 1e3 * final_refresh_s);
   std::printf(
-      "moving things: %lld buffered returns (%lld of them new where an earlier scan saw free), "
-      "%lld deferred rays and %lld voxels the box had left seen through, dropped\n",
+      "moving things: %lld buffered returns (%lld of them new where an earlier scan saw free, "
+      "%lld in busy places by passes added up), %lld deferred rays and %lld voxels the box had "
+      "left seen through, dropped\n",
       (long long)final_stats.transient_buffer_removed,
-      (long long)final_stats.transient_past_removed,
+      (long long)final_stats.transient_past_removed, (long long)final_stats.transient_busy_removed,
       (long long)final_stats.transient_deferred_removed,
       (long long)final_stats.transient_departed_removed);
 
@@ -313,6 +314,7 @@ absl::Status Run(const Args& args) {
       {"transient_deferred_removed", final_stats.transient_deferred_removed},
       {"transient_departed_removed", final_stats.transient_departed_removed},
       {"transient_past_removed", final_stats.transient_past_removed},
+      {"transient_busy_removed", final_stats.transient_busy_removed},
       {"rss_mb_per_frame", series(rss_mb)},
       // The global map grows with the area explored; RSS minus it should stay flat.
       {"submap_mb_per_frame", series(submap_mb)},

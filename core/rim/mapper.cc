@@ -316,6 +316,7 @@ MapperStats Mapper::Stats() const {
       s.transient_deferred_removed = tr.deferred_removed;
       s.transient_departed_removed = tr.departed_removed;
       s.transient_past_removed = tr.past_removed;
+      s.transient_busy_removed = tr.busy_removed;
     }
   }
   s.deferred_points = deferred.points;

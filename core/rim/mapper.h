@@ -119,7 +119,9 @@ struct MapperStats {
   int64_t transient_deferred_removed = 0;
   int64_t transient_departed_removed = 0;  // points the box had left, seen through after
   int64_t transient_past_removed = 0;  // of the buffer's, new returns an earlier scan saw through
-  int64_t mesh_cache_bytes = 0;        // cached mesh blocks (MeshTile)
+  int64_t transient_busy_removed =
+      0;                         // of the buffer's, returns in busy places whose passes added up
+  int64_t mesh_cache_bytes = 0;  // cached mesh blocks (MeshTile)
   int64_t submap_bytes = 0;
   int submaps_active = 0, submaps_frozen = 0, submaps_on_disk = 0;
   bool decoder_frozen = false;

@@ -202,6 +202,44 @@ TEST(PointBufferTest, RemoveDropsTheListedPointsAndKeepsTheRest) {
   EXPECT_EQ(b.points(), expected);
 }
 
+// The moving-things filter's per-point counts (passes()) move with their points through removal
+// and the bound's random drops, new points start at 0, and a loaded buffer starts them over.
+TEST(PointBufferTest, PassCountsMoveWithTheirPoints) {
+  PointBuffer b(Caps(60, 1000), /*seed=*/3);
+  AddTestFrame(&b, 0, 40);
+  // Each count names its point: frame f, index i -> (f * 40 + i) % 251 + 1.
+  auto tag = [](const Vec3f& p) { return uint8_t((int(p.x()) * 40 + int(p.y())) % 251 + 1); };
+  auto tag_all = [&] {
+    ASSERT_EQ(b.passes().size(), b.size());
+    for (size_t i = 0; i < b.size(); ++i) b.passes()[i] = tag(b.points()[i]);
+  };
+  auto expect_tags = [&](const char* when) {
+    ASSERT_EQ(b.passes().size(), b.size()) << when;
+    for (size_t i = 0; i < b.size(); ++i)
+      EXPECT_EQ(b.passes()[i], tag(b.points()[i])) << when << ", point " << i;
+  };
+  tag_all();
+  b.Remove({1, 2, 17, 39});
+  expect_tags("after Remove");
+  AddTestFrame(&b, 1, 30);  // over the bound of 60: random older points go
+  ASSERT_EQ(b.size(), 60u);
+  for (size_t i = b.size() - b.newest(); i < b.size(); ++i) EXPECT_EQ(b.passes()[i], 0) << i;
+  tag_all();
+  b.RemoveOutside(Vec3d(-1, 5, 0), Vec3d(2, 100, 1));
+  expect_tags("after RemoveOutside");
+  b.AddPoints(FramePoints(2, 5), FrameOrigins(2, 5));
+  for (size_t i = b.size() - 5; i < b.size(); ++i) EXPECT_EQ(b.passes()[i], 0) << i;
+  ByteWriter w;
+  b.Serialize(&w);
+  const std::string bytes = w.Release();
+  PointBuffer loaded(Caps(60, 1000), 9);
+  ByteReader r(bytes, "buffer");
+  ASSERT_TRUE(loaded.Deserialize(&r).ok());
+  EXPECT_EQ(loaded.points(), b.points());
+  ASSERT_EQ(loaded.passes().size(), loaded.size());
+  for (uint8_t c : loaded.passes()) EXPECT_EQ(c, 0);
+}
+
 TEST(PointBufferTest, SerializeRoundTripIncludingRandomState) {
   PointBuffer a(Caps(50, 8), /*seed=*/77);
   for (int f = 0; f < 12; ++f) AddTestFrame(&a, f, 20);

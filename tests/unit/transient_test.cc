@@ -424,6 +424,78 @@ TEST(TransientTest, AThinPoleHitByAFewBeamsAndGrazedByManyIsKept) {
   }
 }
 
+// Busy places (TransientConfig::busy_drops): a person stood beside the edge of a parked car and
+// walked off. The points of the person whose window holds the car's edge (returns in front of
+// them) are kept by the rule at every frame. Where the rule dropped many returns (the rest of the
+// person) the place is busy, and there a point goes once, in busy_passes frames since the last
+// that hit it, a ray of the bins about its direction passed within busy_radius_m of it and ended
+// beyond it by the margin. The car, a thin pole beside the person and the ground stay whole.
+TEST(TransientTest, InBusyPlacesPassesAddUpOverFramesAndStaticSurfacesStay) {
+  AnalyticScene scene = Ground();
+  scene.boxes.push_back({Eigen::Vector3f(3.5f, 0.18f, -0.05f), Eigen::Vector3f(5.f, 2.f, 1.5f)});
+  scene.cylinders.push_back({Eigen::Vector2f(6.5f, -0.6f), 0.05f, -0.05f, 3.f});
+  scene.boxes.push_back({Eigen::Vector3f(25.f, -10.f, -0.05f), Eigen::Vector3f(26.f, 10.f, 8.f)});
+  AnalyticScene with_person = scene;
+  with_person.cylinders.push_back({Eigen::Vector2f(6.f, 0.f), 0.25f, -0.05f, 1.7f});
+  auto on_person = [](const Vec3f& p) {
+    return (p.head<2>() - Eigen::Vector2f(6, 0)).norm() < 0.35f && p.z() > 0.15f;
+  };
+  // Static: all but the person and the ground under it (its feet are within the normal margin).
+  auto is_static = [](const Vec3f& p) {
+    return (p.head<2>() - Eigen::Vector2f(6, 0)).norm() >= 0.35f;
+  };
+  auto count = [](const PointBuffer& b, auto pred) {
+    int n = 0;
+    for (const Vec3f& p : b.points()) n += pred(p);
+    return n;
+  };
+  const Scan first = Take(with_person, PoseAt(0, 0), 1, CarLidar(0.03f));
+  // The car's edge lies at 2.06° of azimuth from the sensor; a bin (0.4°) inside it, rays of the
+  // bins about a point's direction end on the car, in front of it, as they would along a surface
+  // the rays graze: those points are left to the rule.
+  const float kBesideEdge = 1.5f * float(M_PI) / 180.f;
+  struct Left {
+    int person, person_clear_of_edge, statics;
+    int64_t busy;
+  };
+  auto run = [&](int busy_drops) {
+    TransientConfig config;
+    config.period_frames = 1;
+    config.quiet_turns = 1;
+    config.busy_drops = busy_drops;
+    PointBuffer buffer = BufferOf(first);
+    TransientFilter filter(config);
+    std::mutex mu;
+    for (int frame = 0; frame < 5; ++frame) {
+      const Scan later = Take(scene, PoseAt(0, 0), 10 + frame, CarLidar(0.03f));
+      filter.Apply(later.points_S, later.T, 0.3f, 60.f, frame, &buffer, nullptr, nullptr, &mu,
+                   nullptr);
+    }
+    return Left{count(buffer, on_person),
+                count(buffer,
+                      [&](const Vec3f& p) {
+                        return on_person(p) && std::atan2(p.y(), p.x()) < kBesideEdge;
+                      }),
+                count(buffer, is_static), filter.Stats().busy_removed};
+  };
+  const int person = count(BufferOf(first), on_person);
+  const int statics = count(BufferOf(first), is_static);
+  ASSERT_GT(person, 300);
+  ASSERT_EQ(TransientConfig().busy_drops, 0);  // off by default
+  const Left off = run(0), on = run(6);
+  // The rule alone leaves the person's side by the car's edge.
+  EXPECT_GT(off.person, 20) << "of " << person;
+  EXPECT_EQ(off.busy, 0);
+  EXPECT_GT(off.person_clear_of_edge, 20);
+  // Passes added up take it, all but the points within a bin of the car's edge.
+  EXPECT_EQ(on.person_clear_of_edge, 0) << off.person_clear_of_edge << " left by the rule alone";
+  EXPECT_LE(on.person, off.person / 2) << off.person << " left by the rule alone, of " << person;
+  EXPECT_GT(on.busy, 0);
+  // Nothing static goes either way: the car (its edge beside the person), the pole, the ground.
+  EXPECT_EQ(off.statics, statics);
+  EXPECT_EQ(on.statics, statics);
+}
+
 TEST(TransientTest, GroundAndWallsAtGrazingAnglesAreKept) {
   AnalyticScene scene = Ground();
   // A street: long facades 6 m either side, seen at grazing angles far along it.
@@ -629,7 +701,12 @@ TEST(TransientTest, BadConfigValuesNameTheField) {
                          "transient.active_cell_m=NaN",
                          "transient.quiet_turns=0",
                          "transient.active_period_frames=-1",
-                         "transient.active_period_frames=5"}) {
+                         "transient.active_period_frames=5",
+                         "transient.busy_drops=-1",
+                         "transient.busy_passes=0",
+                         "transient.busy_passes=256",
+                         "transient.busy_radius_m=NaN",
+                         "transient.busy_max_range_m=-1"}) {
     auto config = MakePreset("maicity");
     ASSERT_TRUE(config.ok());
     const absl::Status s = ApplyOverrides({kv}, &*config);

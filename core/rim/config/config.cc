@@ -87,6 +87,10 @@ void ForEachField(Config& c, Visitor&& v) {
   v("transient.active_cell_m", c.transient.active_cell_m);
   v("transient.quiet_turns", c.transient.quiet_turns);
   v("transient.active_period_frames", c.transient.active_period_frames);
+  v("transient.busy_drops", c.transient.busy_drops);
+  v("transient.busy_passes", c.transient.busy_passes);
+  v("transient.busy_radius_m", c.transient.busy_radius_m);
+  v("transient.busy_max_range_m", c.transient.busy_max_range_m);
   v("transient.clear_samples_per_iteration", c.transient.clear_samples_per_iteration);
   v("transient.clear_label_m", c.transient.clear_label_m);
   v("transient.clear_frames", c.transient.clear_frames);
@@ -287,6 +291,14 @@ absl::Status MapperConfig::Validate() const {
   if (tr.active_period_frames < 0 || tr.active_period_frames > tr.period_frames)
     return Bad("transient.active_period_frames",
                "must be in [0, transient.period_frames] (0: transient.period_frames)");
+  if (tr.busy_drops < 0 || tr.busy_drops > 1000000)
+    return Bad("transient.busy_drops", "must be in [0, 1000000] (0: off)");
+  if (tr.busy_passes < 1 || tr.busy_passes > 255)
+    return Bad("transient.busy_passes", "must be in [1, 255]");
+  if (!(tr.busy_radius_m >= 0.f && tr.busy_radius_m <= 1.f))
+    return Bad("transient.busy_radius_m", "must be in [0, 1] m");
+  if (!(tr.busy_max_range_m >= 0.f && tr.busy_max_range_m <= 1000.f))
+    return Bad("transient.busy_max_range_m", "must be in [0, 1000] m");
   if (tr.clear_samples_per_iteration < 0 || tr.clear_samples_per_iteration > 1 << 20)
     return Bad("transient.clear_samples_per_iteration", "must be in [0, 1048576]");
   if (!(tr.clear_label_m > 0.f && tr.clear_label_m <= 10.f))
@@ -390,6 +402,9 @@ absl::StatusOr<MapperConfig> MakePreset(const std::string& name) {
     // surface around a point"). The conservative rule only.
     c.transient.surface_fit = false;
     c.transient.empty_is_free = false;
+    // Evidence added up over frames lets a ray beside an edge count: with this odometry, walls
+    // seen again from a pose some decimetres off would go. Off, as the two branches above.
+    c.transient.busy_drops = 0;
   } else {
     return absl::InvalidArgumentError(absl::StrCat("unknown preset '", name,
                                                    "'; known presets: maicity, ",

@@ -167,6 +167,20 @@ struct TransientConfig {
   float active_cell_m = 1.f;
   int quiet_turns = 4;
   int active_period_frames = 0;
+  // Busy places: a column (with the eight around it) where busy_drops or more buffered returns
+  // were dropped in the last active_frames frames. A person walking away from the road between
+  // parked cars is seen for a few frames as the robot passes, each frame's returns just in front
+  // of the next frame's body, and then hidden by the cars: no one scan sees clearly through the
+  // places they left, so the rule above keeps them. In busy places the buffer is judged every
+  // frame, and evidence also adds up over frames: a return is dropped once, in busy_passes judged
+  // frames since the last that found something within the near distance of it, a ray passed
+  // within busy_radius_m of it and ended beyond it by the margin (at most busy_max_range_m from
+  // the sensor, where rings are dense enough that such a ray grazing a static surface ends within
+  // the margin). 0 (the default): off; 6 is the measured setting (docs/core.md, "Moving things").
+  int busy_drops = 0;
+  int busy_passes = 2;
+  float busy_radius_m = 0.05f;
+  float busy_max_range_m = 10.f;
   // Free-space samples where dropped returns stood: how many per iteration, their label, for how
   // many frames a dropped return is cleared, and at most how many are held.
   int clear_samples_per_iteration = 128;

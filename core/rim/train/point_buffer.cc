@@ -25,6 +25,7 @@ void PointBuffer::AddFrame(const std::vector<Vec3f>& points_W,
     points_.push_back(points_W[idx[i]]);
     origins_.push_back(origins_W[idx[i]]);
   }
+  passes_.resize(points_.size(), 0);
   newest_ = keep;
   TrimToBound();
 }
@@ -33,6 +34,7 @@ void PointBuffer::AddPoints(const std::vector<Vec3f>& points_W,
                             const std::vector<Vec3f>& origins_W) {
   points_.insert(points_.end(), points_W.begin(), points_W.end());
   origins_.insert(origins_.end(), origins_W.begin(), origins_W.end());
+  passes_.resize(points_.size(), 0);
   newest_ += points_W.size();
   TrimToBound();
 }
@@ -45,8 +47,10 @@ void PointBuffer::TrimToBound() {
       const size_t j = pick(rng_);
       points_[j] = points_.back();
       origins_[j] = origins_.back();
+      passes_[j] = passes_.back();
       points_.pop_back();
       origins_.pop_back();
+      passes_.pop_back();
       --newest_;
       continue;
     }
@@ -56,10 +60,13 @@ void PointBuffer::TrimToBound() {
     const size_t j = pick(rng_);
     points_[j] = points_[older - 1];
     origins_[j] = origins_[older - 1];
+    passes_[j] = passes_[older - 1];
     points_[older - 1] = points_.back();
     origins_[older - 1] = origins_.back();
+    passes_[older - 1] = passes_.back();
     points_.pop_back();
     origins_.pop_back();
+    passes_.pop_back();
   }
 }
 
@@ -94,11 +101,13 @@ void PointBuffer::Remove(const std::vector<uint32_t>& drop) {
       // Three packed floats a point (as Serialize reads them), moved down over themselves.
       std::memmove(points_[out].data(), points_[begin].data(), (end - begin) * sizeof(Vec3f));
       std::memmove(origins_[out].data(), origins_[begin].data(), (end - begin) * sizeof(Vec3f));
+      std::memmove(&passes_[out], &passes_[begin], end - begin);
     }
     out += end - begin;
   }
   points_.resize(out);
   origins_.resize(out);
+  passes_.resize(out);
 }
 
 void PointBuffer::Serialize(ByteWriter* w) const {
@@ -138,6 +147,7 @@ absl::Status PointBuffer::Deserialize(ByteReader* r) {
   rng_ = rng;
   points_ = std::move(points);
   origins_ = std::move(origins);
+  passes_.assign(points_.size(), 0);
   newest_ = 0;  // set by the next frame, before anything samples
   return absl::OkStatus();
 }

@@ -37,6 +37,12 @@ class PointBuffer {
   size_t newest() const { return newest_; }
   const std::vector<Vec3f>& points() const { return points_; }
   const std::vector<Vec3f>& origins() const { return origins_; }
+  // Per point, a count the moving-things filter keeps (TransientFilter's busy places: frames in
+  // which later rays passed it since one last found something there). It moves with its point;
+  // new points start at 0. Not saved: a loaded buffer starts every count at 0, as the filter's
+  // other state starts over.
+  std::vector<uint8_t>& passes() { return passes_; }
+  const std::vector<uint8_t>& passes() const { return passes_; }
 
   void Serialize(ByteWriter* w) const;
   absl::Status Deserialize(ByteReader* r);
@@ -48,6 +54,7 @@ class PointBuffer {
   std::mt19937_64 rng_;
   std::vector<Vec3f> points_;
   std::vector<Vec3f> origins_;
+  std::vector<uint8_t> passes_;
   size_t newest_ = 0;
 };
 

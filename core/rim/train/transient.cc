@@ -695,6 +695,61 @@ Verdict JudgePlaced(const RangeImage& image, const TransientConfig& c, const Vec
   return rms_range <= allowed ? Verdict::kSeenThrough : Verdict::kKept;
 }
 
+// Evidence that adds up in busy places (TransientConfig::busy_drops): what this scan says of p_S
+// (sensor frame) by the rays of the 3 × 3 bins about its direction that pass within busy_radius_m
+// of it. kHit: one of them ends within
+// the near distance of p (something is there); kPass: none does, and one ends beyond p by the
+// margin; kNone otherwise (all of them end in front of p, or none passes that near, or p lies
+// outside [min_range_m, busy_max_range_m]). A ray's place is its return's place in its bin.
+enum class Pass : uint8_t { kNone, kPass, kHit };
+Pass BusyPass(const RangeImage& image, const TransientConfig& c, const Vec3f& p_S) {
+  const float r = p_S.norm();
+  if (!(r >= c.min_range_m && r <= std::min(c.max_range_m, c.busy_max_range_m))) return Pass::kNone;
+  float fa, fe;
+  image.PlaceOf(p_S, &fa, &fe);
+  const float beyond = r + c.margin_m + c.margin_per_m * r;
+  const int a0 = int(fa), e0 = int(fe);
+  const float r_xy = std::max(std::sqrt(p_S.x() * p_S.x() + p_S.y() * p_S.y()), 0.1f);
+  const float cos_el = r_xy / std::max(r, 1e-6f);
+  const float bin_m = image.bin_rad() * r;
+  const float near = c.near_m + c.near_bins * bin_m;
+  const float radius2 = c.busy_radius_m * c.busy_radius_m;
+  // The rays of the 3 × 3 bins about p's direction (a bin is 3.5 cm across at 5 m, 7 cm at 10 m).
+  constexpr int reach = 1;
+  const int na = image.azimuth_bins(), ne = image.elevation_bins();
+  bool pass = false, clean = true;
+  for (int e = std::max(e0 - reach, 0); e <= std::min(e0 + reach, ne - 1); ++e) {
+    const uint16_t* ranges = image.RangeRow(e);
+    if (ranges == nullptr) continue;
+    for (int da = -reach; da <= reach; ++da) {
+      int a = a0 + da;
+      if (a < 0) a += na;
+      if (a >= na) a -= na;
+      const uint16_t cm = ranges[a];
+      if (cm == 0) return Pass::kNone;  // blocked near the sensor: nothing behind it is known
+      float v, oa = 0.5f, oe = 0.5f;
+      if (cm == RangeImage::empty_cm()) {
+        // Nothing came back: a ray to the scan's range along a row the sensor fired (as the
+        // rule reads it), no evidence elsewhere. Its place: the bin's centre.
+        if (!c.empty_is_free || !image.Fired(e)) continue;
+        v = image.empty_range_m();
+      } else {
+        v = 0.01f * float(cm);
+        image.OffsetAt(a, e, &oa, &oe);
+      }
+      const float x = (float(a0 + da) + oa - fa) * cos_el * bin_m;
+      const float y = (float(e) + oe - fe) * bin_m;
+      const bool within = x * x + y * y <= radius2;
+      if (within && std::abs(v - r) < near) return Pass::kHit;
+      // A ray of these bins that ends in front of p: p may lie on a surface the rays graze (a
+      // car's side seen along it), where the rays beside p run on along the surface.
+      if (v < beyond) clean = false;
+      pass |= within && v >= beyond;
+    }
+  }
+  return pass && clean ? Pass::kPass : Pass::kNone;
+}
+
 // Judges the points i of [begin, end) for which want(i) holds, p_S(i) in the image's sensor frame,
 // and hands each verdict to done(i, verdict): eight places at a time (RangeImage::Place8, the
 // bits of PlaceOf and norm()). want is asked once for each i, in increasing order.
@@ -863,6 +918,11 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
   const size_t n = points.size();
   drop_.assign(n, 0);
   const bool gate = BuildActiveMask(frame);
+  std::vector<uint8_t>& passes = buffer->passes();
+  // Busy places are judged in every frame within the reach of passes (busy_max_range_m); farther
+  // ones keep the turns of places where things move.
+  const float busy_reach = std::min(config_.busy_max_range_m, config_.max_range_m);
+  const float busy_r2 = busy_reach * busy_reach;
   const size_t every = size_t(period) * (gate ? size_t(config_.quiet_turns) : 1);
   const size_t active_every =
       size_t(config_.active_period_frames > 0 ? config_.active_period_frames : period);
@@ -876,15 +936,32 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
     JudgeRange(
         image_, config_, begin, end,
         [&](size_t i) {
-          const bool want =
-              r == phase_every || (gate && ra == phase_active && active_mask_.Has(points[i]));
+          const bool want = r == phase_every ||
+                            (gate && ra == phase_active && active_mask_.Has(points[i])) ||
+                            (busy_on_ && (points[i] - view.sensor_W).squaredNorm() <= busy_r2 &&
+                             busy_mask_.Has(points[i]));
           if (++r == every) r = 0;
           if (++ra == active_every) ra = 0;
           mine += want;
           return want;
         },
         [&](size_t i) { return view.ToSensor(points[i]); },
-        [&](size_t i, Verdict v) { drop_[i] = v == Verdict::kSeenThrough; });
+        [&](size_t i, Verdict v) {
+          drop_[i] = v == Verdict::kSeenThrough;
+          // In busy places, passes add up over frames (each point is one piece's: no race).
+          if (!busy_on_ || v == Verdict::kSeenThrough || !busy_mask_.Has(points[i])) return;
+          // (BusyPass reads kNone beyond busy_max_range_m.)
+          const Pass pass = v == Verdict::kSomethingThere
+                                ? Pass::kHit
+                                : BusyPass(image_, config_, view.ToSensor(points[i]));
+          uint8_t& count = passes[i];
+          if (pass == Pass::kHit) {
+            count = 0;
+          } else if (pass == Pass::kPass) {
+            if (count < 255) ++count;
+            if (count >= config_.busy_passes) drop_[i] = 2;
+          }
+        });
     judged.fetch_add(mine, std::memory_order_relaxed);
   });
   const bool unmark = map != nullptr && map->placed();
@@ -908,20 +985,25 @@ void TransientFilter::Apply(const std::vector<Vec3f>& points_S,
 }
 
 void TransientFilter::NoteDrop(const Vec3f& p_W, int64_t frame) {
-  if (config_.active_frames <= 0 || config_.quiet_turns <= 1) return;
+  if (config_.active_frames <= 0 || (config_.quiet_turns <= 1 && config_.busy_drops <= 0)) return;
   const float inv_cell = 1.f / config_.active_cell_m;
-  active_[ColumnKey(int(std::floor(p_W.x() * inv_cell)), int(std::floor(p_W.y() * inv_cell)))] =
-      frame;
+  Column& c =
+      active_[ColumnKey(int(std::floor(p_W.x() * inv_cell)), int(std::floor(p_W.y() * inv_cell)))];
+  if (frame - c.last > config_.active_frames) c.drops = 0;
+  c.last = frame;
+  ++c.drops;
 }
 
 bool TransientFilter::BuildActiveMask(int64_t frame) {
-  if (config_.active_frames <= 0 || config_.quiet_turns <= 1) return false;
+  busy_on_ = false;
+  const bool quiet = config_.quiet_turns > 1, busy = config_.busy_drops > 0;
+  if (config_.active_frames <= 0 || (!quiet && !busy)) return false;
   absl::erase_if(active_,
-                 [&](const auto& kv) { return frame - kv.second > config_.active_frames; });
+                 [&](const auto& kv) { return frame - kv.second.last > config_.active_frames; });
   ActiveMask& m = active_mask_;
   m.inv_cell = 1.f / config_.active_cell_m;
   m.nx = m.ny = 0;
-  if (active_.empty()) return true;
+  if (active_.empty()) return quiet;
   int lo_x = std::numeric_limits<int>::max(), lo_y = lo_x;
   int hi_x = std::numeric_limits<int>::min(), hi_y = hi_x;
   for (const auto& kv : active_) {
@@ -931,16 +1013,27 @@ bool TransientFilter::BuildActiveMask(int64_t frame) {
   }
   const int64_t nx = int64_t(hi_x) - lo_x + 3, ny = int64_t(hi_y) - lo_y + 3;
   // Drops spread over more columns than a mask should hold (a tiny column over a wide map):
-  // every point takes its turn this frame.
+  // every point takes its turn this frame, and no place is busy.
   if (nx * ny > (int64_t(1) << 24)) return false;
   m.x0 = lo_x - 1, m.y0 = lo_y - 1, m.nx = int(nx), m.ny = int(ny);
   m.on.assign(size_t(nx * ny), 0);
+  ActiveMask& b = busy_mask_;
+  b.inv_cell = m.inv_cell;
+  b.x0 = m.x0, b.y0 = m.y0, b.nx = m.nx, b.ny = m.ny;
+  b.on.assign(busy ? size_t(nx * ny) : 0, 0);
   for (const auto& kv : active_) {
     const int x = int32_t(uint32_t(kv.first >> 32)) - m.x0, y = int32_t(uint32_t(kv.first)) - m.y0;
+    const bool is_busy = busy && kv.second.drops >= config_.busy_drops;
+    busy_on_ |= is_busy;
     for (int dx = -1; dx <= 1; ++dx)
-      for (int dy = -1; dy <= 1; ++dy) m.on[size_t(x + dx) * size_t(ny) + size_t(y + dy)] = 1;
+      for (int dy = -1; dy <= 1; ++dy) {
+        const size_t k = size_t(x + dx) * size_t(ny) + size_t(y + dy);
+        m.on[k] = 1;
+        if (is_busy) b.on[k] = 1;
+      }
   }
-  return true;
+  // Without the quiet gate every point takes its turn; the active mask then serves the busy one.
+  return quiet;
 }
 
 int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer* buffer,
@@ -948,12 +1041,17 @@ int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer*
   const std::vector<Vec3f>& points = buffer->points();
   const size_t n = points.size();
   std::vector<uint32_t> gone;
+  int64_t busy = 0;
   const bool unmark = map != nullptr && map->placed();
   const double inv_leaf = unmark ? 1.0 / map->geometry().leaf_m() : 0.0;
   for (size_t i = from; i < n; ++i) {
     if (!drop_[i]) continue;
     gone.push_back(uint32_t(i));
-    NoteDrop(points[i], frame);
+    if (drop_[i] == 1) {
+      NoteDrop(points[i], frame);
+    } else {
+      ++busy;
+    }
     const Vec3f d = points[i] - buffer->origins()[i];
     const float len = d.norm();
     cleared_.Add(points[i], len > 0.f ? Vec3f(d / len) : Vec3f::UnitZ(), frame);
@@ -978,6 +1076,7 @@ int64_t TransientFilter::DropFromBuffer(int64_t frame, size_t from, PointBuffer*
   if (!gone.empty()) {
     std::lock_guard<std::mutex> lock(*aux_mu);
     buffer->Remove(gone);
+    stats_.busy_removed += busy;
   }
   return int64_t(gone.size());
 }

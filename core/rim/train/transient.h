@@ -188,6 +188,7 @@ struct TransientStats {
   int64_t deferred_removed = 0;  // deferred rays dropped since creation
   int64_t judged = 0;            // points judged since creation
   int64_t past_removed = 0;      // of buffer_removed, those dropped on earlier evidence
+  int64_t busy_removed = 0;  // of buffer_removed, those dropped on passes added up (busy places)
   int64_t departed_removed = 0;  // departed points seen through since creation
 };
 
@@ -239,16 +240,23 @@ class TransientFilter {
                         const Eigen::Isometry3f& T_world_sensor, WorkerPool* pool);
 
   // Where things move (TransientConfig::active_frames): the columns, active_cell_m across x and y,
-  // in which a buffered return was dropped, with the frame of the last drop there.
+  // in which a buffered return was dropped, with the frame of the last drop there and the drops
+  // since the column was last quiet for active_frames frames. Only the rule's drops count (on
+  // this scan's or on earlier evidence), not those of passes added up in busy places.
+  struct Column {
+    int64_t last = 0;
+    int drops = 0;
+  };
   static uint64_t ColumnKey(int cx, int cy) {
     return (uint64_t(uint32_t(cx)) << 32) | uint64_t(uint32_t(cy));
   }
   void NoteDrop(const Vec3f& p_W, int64_t frame);
   // Forgets the columns quiet since before frame − active_frames and sets active_mask_ to those
-  // left, each with its eight neighbours. Returns false when the gate is off this frame (every
-  // point takes its turn).
+  // left, each with its eight neighbours, and busy_mask_ to those of them with busy_drops drops or
+  // more (busy_on_: whether it holds this frame). Returns false when the gate is off this frame
+  // (every point takes its turn).
   bool BuildActiveMask(int64_t frame);
-  absl::flat_hash_map<uint64_t, int64_t> active_;
+  absl::flat_hash_map<uint64_t, Column> active_;
   struct ActiveMask {
     int x0 = 0, y0 = 0, nx = 0, ny = 0;  // columns [x0, x0 + nx) × [y0, y0 + ny)
     float inv_cell = 1.f;
@@ -260,6 +268,8 @@ class TransientFilter {
     }
   };
   ActiveMask active_mask_;
+  ActiveMask busy_mask_;
+  bool busy_on_ = false;
 
   TransientConfig config_;
   RangeImage image_;  // this frame's scan
@@ -276,7 +286,7 @@ class TransientFilter {
   RangeImage::Scratch fill_scratch_;  // for image_, whichever ring slot's storage it holds
   ClearedPoints cleared_;
   TransientStats stats_;
-  std::vector<uint8_t> drop_;
+  std::vector<uint8_t> drop_;  // per buffered point: 1 seen through, 2 passes added up (busy)
   struct Departed {
     Vec3f p;
     int64_t frame;
