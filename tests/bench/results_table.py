@@ -406,6 +406,7 @@ GHOSTS = "2026-12-02-moving-ghosts.json"
 PLANNER_RICH = "2026-12-02-planner-rich.json"
 TRANSIENT_COST = "2026-12-02-transient-gate.json"  # the turn where things move, and every turn
 TSDF_MOVING = "2026-12-02-tsdf-moving.json"  # the TSDF reference on the cities of TRANSIENT_COST
+BUSY = "2026-12-02-busy-places.json"  # passes added up in busy places, against the default
 CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
@@ -650,7 +651,27 @@ TABLES = {
                 digits=3) + "; the TSDF without carving: " + fmt_range(
                 r.values(TSDF_MOVING, "floater_pct", run="tsdf_no_carve"), digits=1),
             None, [TSDF_MOVING, TRANSIENT_COST]),
-        Row("C-L1 of those runs above the same city without movers, %",
+        Row("floaters, filter on (the default), fresh seeds 782–784, `maicity` and "
+            "`maicity_online`, %",
+            lambda r: [m["floater_pct"] for m in r.runs(BUSY, kind="map", city="moving",
+                                                         build="default")
+                       if m["seed"] in (782, 783, 784)], F3, "–", ("≤ 0.1", ("<=", 0.1)),
+            [BUSY]),
+        Row("the same with passes added up in busy places (`transient.busy_drops=6`, not the "
+            "default), %",
+            lambda r: [m["floater_pct"] for m in r.runs(BUSY, kind="map", build="busy")
+                       if m["seed"] in (782, 783, 784)], F3,
+            lambda r: "tuning seed 778, `maicity_online`: 0.226 by default, " + fmt_range(
+                [m["floater_pct"] for m in r.runs(BUSY, kind="map", build="busy", seed=778)],
+                digits=3), ("≤ 0.1", ("<=", 0.1)), [BUSY]),
+        Row("the filter (`transient`) with busy places on, over the default in the same rounds, "
+            "ms a frame (`maicity_online`)",
+            lambda r: [on["transient_ms"] - off["transient_ms"]
+                       for on in r.runs(BUSY, kind="stage", variant="busy")
+                       for off in r.runs(BUSY, kind="stage", variant="default",
+                                         round=on["round"], seed=on["seed"])],
+            {"digits": 1, "signed": True}, "–", None, [BUSY]),
+        Row("C-L1 of the runs on seeds 776–778 above the same city without movers, %",
             lambda r: [100 * (m["c_l1_cm"] / s["c_l1_cm"] - 1)
                        for s in r.runs(TRANSIENT_COST, kind="map", city="static")
                        for m in r.runs(TRANSIENT_COST, kind="map", city="moving", build="after",
