@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <mutex>
 #include <string>
@@ -54,10 +55,11 @@ struct StreamRun : testing_support::StreamAcks {
   }
 };
 
-// Streams kFrames ground scans at `interval` into a new session with 300 iterations a frame.
-StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, bool real_time) {
+// Streams kFrames ground scans at `interval` into a new session with `iterations` a frame.
+StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, bool real_time,
+                   int iterations) {
   StreamRun run;
-  EXPECT_TRUE(client->CreateSession(robot, "maicity", Overrides(300)).ok());
+  EXPECT_TRUE(client->CreateSession(robot, "maicity", Overrides(iterations)).ok());
   std::vector<PosedScan> scans;
   for (int i = 0; i < kFrames; ++i) scans.push_back(GroundScan(0.05 * i));
   StreamOptions options;
@@ -68,6 +70,14 @@ StreamRun StreamAt(Client* client, const std::string& robot, double interval_s, 
   EXPECT_TRUE(summary.ok()) << summary.status();
   if (summary.ok()) EXPECT_EQ(summary->integrated, uint64_t(kFrames));
   return run;
+}
+
+// Seconds a frame over 8 ground scans uploaded into a new session with `iterations` a frame.
+double CalibrationFrameSeconds(Client* client, const std::string& robot, int iterations) {
+  EXPECT_TRUE(client->CreateSession(robot, "maicity", Overrides(iterations)).ok());
+  auto summary = client->Session(robot).Stream(testing_support::GroundScans(8));
+  EXPECT_TRUE(summary.ok()) << summary.status();
+  return summary.ok() ? summary->seconds / 8 : 0;
 }
 
 TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRateDoesNot) {
@@ -81,29 +91,34 @@ TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRate
   // The robot's interval: 200 ms (5 Hz), or ten frames at the floor of 2 iterations on a
   // slower build or a busy machine. A frame plans 95 % of its period, so what is left for training
   // between frames grows with the period: at 50 ms a busy 2-core host left none over 40 frames.
-  // The upload's 300 full iterations a frame still take longer than the interval, so its queue
-  // fills.
-  ASSERT_TRUE(client->CreateSession("calibration", "maicity", Overrides(2)).ok());
-  auto calibration = client->Session("calibration").Stream(testing_support::GroundScans(8));
-  ASSERT_TRUE(calibration.ok()) << calibration.status();
-  const double frame_s = calibration->seconds / 8;
+  const double frame_s = CalibrationFrameSeconds(&*client, "calibration", 2);
   const double interval_s = std::clamp(10 * frame_s, 0.2, 1.5);
+  // Both sessions are configured for full iterations worth twice the interval a frame (at least
+  // 300), so that on any host the upload's queue fills and the paced session must cut. An
+  // iteration's cost: frames of 100 iterations less frames of 2.
+  const double iteration_s =
+      (CalibrationFrameSeconds(&*client, "calibration_100", 100) - frame_s) / 98;
+  const int iterations =
+      iteration_s > 0 ? std::clamp(int(std::ceil(2 * interval_s / iteration_s)), 300, 4000) : 300;
 
-  const StreamRun paced = StreamAt(&*client, "paced_robot", interval_s, /*real_time=*/true);
-  const StreamRun upload = StreamAt(&*client, "upload_robot", interval_s, /*real_time=*/false);
+  const StreamRun paced =
+      StreamAt(&*client, "paced_robot", interval_s, /*real_time=*/true, iterations);
+  const StreamRun upload =
+      StreamAt(&*client, "upload_robot", interval_s, /*real_time=*/false, iterations);
   ASSERT_EQ(paced.lag.size(), size_t(kFrames));
   ASSERT_EQ(upload.lag.size(), size_t(kFrames));
 
   std::printf(
-      "interval %.3f s; paced: median lag %d, iterations %d; upload: median lag %d, "
-      "iterations %d\n",
-      interval_s, SecondHalfMedian(paced.lag), SecondHalfMedian(paced.iterations),
-      SecondHalfMedian(upload.lag), SecondHalfMedian(upload.iterations));
+      "interval %.3f s, iteration %.2f ms, %d configured; paced: median lag %d, iterations %d; "
+      "upload: median lag %d, iterations %d\n",
+      interval_s, 1e3 * iteration_s, iterations, SecondHalfMedian(paced.lag),
+      SecondHalfMedian(paced.iterations), SecondHalfMedian(upload.lag),
+      SecondHalfMedian(upload.iterations));
   // Paced: each frame trains what fits before the next scan, on the smaller batches, well under
-  // the 4 × 300 configured and above the floor of 4 × 2.
+  // the configured iterations (4 × as many at a quarter of the rays) and above the floor of 4 × 2.
   EXPECT_LE(SecondHalfMedian(paced.lag), 2) << "interval " << interval_s << " s";  // of 8
   EXPECT_EQ(SecondHalfMedian(paced.rays), kPacedRays);
-  EXPECT_LT(SecondHalfMedian(paced.iterations), 4 * 300);
+  EXPECT_LT(SecondHalfMedian(paced.iterations), 4 * iterations);
   EXPECT_GT(SecondHalfMedian(paced.iterations), 4 * 2);
   // What the period leaves after a frame's planned iterations, the paced session trains on
   // between frames (Mapper::TrainBetweenFrames); the upload, whose queue never empties, does not.
@@ -114,6 +129,7 @@ TEST(ServerPacingTest, ARealTimeStreamKeepsItsQueueShortAndAnUploadAtTheSameRate
   // The upload: the configured iterations whatever its queue (docs/service.md, "Replays keep the
   // offline map"), on the configured batch, so its queue fills.
   EXPECT_GE(SecondHalfMedian(upload.lag), kQueueLength / 2) << "interval " << interval_s << " s";
+  EXPECT_EQ(SecondHalfMedian(upload.iterations), iterations);
   for (int rays : upload.rays) EXPECT_EQ(rays, kRays);
   EXPECT_EQ((*server)->Stop().value_or(-1), 0);
 }

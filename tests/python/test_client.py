@@ -13,6 +13,7 @@ Runs with a Python that has rim_client installed: the build's venv (tests/CMakeL
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -459,15 +460,26 @@ class RealTimeStreamTest(unittest.TestCase):
         with rim_client.Client(SERVER.address) as client:
             # The interval: 200 ms, or ten frames at 2 iterations on a slow or busy machine. A
             # frame plans 95 % of its period: at 50 ms the spare time of a busy host was within
-            # the noise. The upload's 300 iterations a frame still take longer, so its queue fills.
+            # the noise.
             seconds, _ = self._stream(client, "py_calibration", 2, 0.0, real_time=False)
             interval_s = min(max(10 * seconds / self.FRAMES, 0.2), 1.5)
-            _, paced = self._stream(client, "py_paced", 300, interval_s, real_time=True)
-            _, upload = self._stream(client, "py_upload", 300, interval_s, real_time=False)
+            # Both sessions are configured for full iterations worth twice the interval a frame
+            # (at least 300), so that on any host the upload's queue fills and the paced session
+            # must cut. An iteration's cost: frames of 100 iterations less frames of 2.
+            seconds_100, _ = self._stream(client, "py_calibration_100", 100, 0.0, real_time=False)
+            iteration_s = (seconds_100 - seconds) / (self.FRAMES * 98)
+            iterations = (min(max(math.ceil(2 * interval_s / iteration_s), 300), 4000)
+                          if iteration_s > 0 else 300)
+            _, paced = self._stream(client, "py_paced", iterations, interval_s, real_time=True)
+            _, upload = self._stream(client, "py_upload", iterations, interval_s, real_time=False)
         lags = [self._second_half_median([a.lag_frames for a in run]) for run in (paced, upload)]
-        note = f"interval {interval_s:.3f} s, median lag paced / upload {lags}"
+        trained = [self._second_half_median([a.iterations for a in run]) for run in (paced, upload)]
+        note = (f"interval {interval_s:.3f} s, iteration {1e3 * iteration_s:.2f} ms, "
+                f"{iterations} iterations configured; median lag paced / upload {lags}, "
+                f"iterations {trained}")
         self.assertLessEqual(lags[0], 2, note)  # of 8
-        self.assertLess(self._second_half_median([a.iterations for a in paced]), 300, note)
+        self.assertLess(trained[0], iterations, note)
+        self.assertEqual(trained[1], iterations, note)
         self.assertGreaterEqual(lags[1], 4, note)
 
 
