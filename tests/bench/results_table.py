@@ -407,6 +407,7 @@ PLANNER_RICH = "2026-12-02-planner-rich.json"
 TRANSIENT_COST = "2026-12-02-transient-gate.json"  # the turn where things move, and every turn
 TSDF_MOVING = "2026-12-02-tsdf-moving.json"  # the TSDF reference on the cities of TRANSIENT_COST
 BUSY = "2026-12-02-busy-places.json"  # passes added up in busy places, against the default
+BUSY_DEFAULT = "2026-12-03-busy-default.json"  # busy places on and off, fresh seeds 785-787
 CROSSINGS = "2026-11-28-planner-crossings.json"
 CHECKPOINTS = "2026-11-25-checkpoints.json"
 GPU = "2026-11-28-gpu.json"
@@ -664,6 +665,25 @@ TABLES = {
             lambda r: "tuning seed 778, `maicity_online`: 0.226 by default, " + fmt_range(
                 [m["floater_pct"] for m in r.runs(BUSY, kind="map", build="busy", seed=778)],
                 digits=3), ("≤ 0.1", ("<=", 0.1)), [BUSY]),
+        Row("floaters with busy places on (not the default), fresh seeds 785–787, `maicity` and "
+            "`maicity_online`, %",
+            lambda r: [m["floater_pct"] for m in r.runs(BUSY_DEFAULT, city="moving", busy="on")],
+            F3,
+            lambda r: "the default (busy places off), same cities: " + fmt_range(
+                [m["floater_pct"] for m in r.runs(BUSY_DEFAULT, city="moving", busy="off")],
+                digits=3), ("≤ 0.1", ("<=", 0.1)), [BUSY_DEFAULT]),
+        Row("C-L1 of those runs above the same city without movers, %",
+            lambda r: [100 * (m["c_l1_cm"] / s["c_l1_cm"] - 1)
+                       for s in r.runs(BUSY_DEFAULT, city="static", busy="on")
+                       for m in r.runs(BUSY_DEFAULT, city="moving", busy="on", seed=s["seed"],
+                                       preset=s["preset"])],
+            {"digits": 1, "signed": True},
+            lambda r: "the default (off): " + fmt_range(
+                [100 * (m["c_l1_cm"] / s["c_l1_cm"] - 1)
+                 for s in r.runs(BUSY_DEFAULT, city="static", busy="off")
+                 for m in r.runs(BUSY_DEFAULT, city="moving", busy="off", seed=s["seed"],
+                                 preset=s["preset"])], digits=1, signed=True),
+            ("≤ +3", ("<=", 3)), [BUSY_DEFAULT]),
         Row("the filter (`transient`) with busy places on, over the default in the same rounds, "
             "ms a frame (`maicity_online`)",
             lambda r: [on["transient_ms"] - off["transient_ms"]
