@@ -473,7 +473,8 @@ class RealTimeStreamTest(unittest.TestCase):
             _, paced = self._stream(client, "py_paced", iterations, interval_s, real_time=True)
             _, upload = self._stream(client, "py_upload", iterations, interval_s, real_time=False)
         lags = [self._second_half_median([a.lag_frames for a in run]) for run in (paced, upload)]
-        trained = [self._second_half_median([a.iterations for a in run]) for run in (paced, upload)]
+        trained = [self._second_half_median([a.iterations for a in run])
+                   for run in (paced, upload)]
         note = (f"interval {interval_s:.3f} s, iteration {1e3 * iteration_s:.2f} ms, "
                 f"{iterations} iterations configured; median lag paced / upload {lags}, "
                 f"iterations {trained}")
